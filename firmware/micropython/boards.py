@@ -1,0 +1,84 @@
+# Board profiles: pin map and ADC set-up. The sampler only sees `read` functions
+# that return raw counts in the unit HELLO declares.
+#
+# Pico (RP2040): ADC on GP26-28 only (GP29 measures VSYS on the Pico board), so
+# three analog channels: ax, ay and the yaw gyro; az is not sampled (planar
+# dynamics need no az; mounting tilt is calibrated from ax, ay). ADC(Pin(n)), not
+# ADC(n): by channel number the pad pull-down stays on. read_u16 scales 12 bits to
+# 16; we send the native 12-bit count.
+#
+# ESP32 DevKit: ADC1 (GPIO32-39; ADC2 is unusable with WiFi). 11 dB attenuation
+# converts ~0.15-2.45 V linearly only, and the reference is not the sensor supply,
+# so we send read_uv() in millivolts and HELLO states the clip voltage. An ADXL335
+# on 3.3 V swings to 2.64 V at +3 g: beyond +2.7 g (x, y) the reading clips.
+from machine import ADC, Pin
+
+PROFILES = {
+    "pico": {
+        "adc": {"bits": 12, "vref": 3.3, "unit": "count"},
+        "adc_clip_v": None,
+        "pins": {"ax": 26, "ay": 27, "az": None, "yaw": 28, "vbat": None},
+        "steer_pin": 2,
+        "wheel_pin": 3,
+        "timer_id": -1,
+        "hard_timer": True,
+    },
+    "esp32": {
+        "adc": {"bits": 12, "vref": 3.3, "unit": "mV"},
+        "adc_clip_v": 2.45,
+        "pins": {"ax": 32, "ay": 33, "az": 34, "yaw": 35, "vbat": 36},
+        "steer_pin": 25,
+        "wheel_pin": 26,
+        "timer_id": 0,
+        "hard_timer": False,
+    },
+}
+
+PARTS = {
+    "ax": ("ADXL335", "ratiometric"),
+    "ay": ("ADXL335", "ratiometric"),
+    "az": ("ADXL335", "ratiometric"),
+    "yaw": ("LISY300AL", "absolute"),
+    "vbat": ("divider", "absolute"),
+}
+CHANNELS = ("ax", "ay", "az", "yaw", "vbat")
+
+
+def _missing():
+    return 0xFFFF
+
+
+class _Rp2Channel:
+    def __init__(self, pin_no):
+        self._read = ADC(Pin(pin_no)).read_u16
+
+    def read(self):
+        return self._read() >> 4
+
+
+class _Esp32Channel:
+    def __init__(self, pin_no):
+        adc = ADC(Pin(pin_no), atten=ADC.ATTN_11DB)
+        self._read = adc.read_uv
+
+    def read(self):
+        return self._read() // 1000
+
+
+def open_channels(name):
+    """Return (profile, readers) with one zero-argument read function per channel."""
+    profile = PROFILES[name]
+    make = _Rp2Channel if profile["adc"]["unit"] == "count" else _Esp32Channel
+    readers = []
+    for ch in CHANNELS:
+        pin = profile["pins"][ch]
+        readers.append(_missing if pin is None else make(pin).read)
+    return profile, readers
+
+
+def channel_map(profile):
+    out = {}
+    for ch in CHANNELS:
+        pin = profile["pins"][ch]
+        out[ch] = None if pin is None else {"pin": pin, "part": PARTS[ch][0], "out": PARTS[ch][1]}
+    return out

@@ -1,0 +1,62 @@
+# Pulse inputs captured by pin interrupts, so the sampler never blocks on them:
+# machine.time_pulse_us would stall the loop for up to a servo period and can
+# return half a pulse. Each edge is timestamped in its interrupt instead.
+import time
+from machine import Pin
+from micropython import const
+
+_MASK30 = const(0x3FFFFFFF)
+_MIN_PULSE_US = const(400)  # RC servo pulses are 1000-2000 us; anything far out is noise
+_MAX_PULSE_US = const(2600)
+
+
+def _irq(pin, handler, trigger):
+    try:
+        pin.irq(handler=handler, trigger=trigger, hard=True)
+    except TypeError:  # ports without hard pin IRQs (their IRQs are scheduled)
+        pin.irq(handler=handler, trigger=trigger)
+
+
+class ServoPulse:
+    """Width of the steering servo pulse (the receiver's command), in us."""
+
+    def __init__(self, pin_no, timeout_us):
+        self.pin = Pin(pin_no, Pin.IN)
+        self.timeout_us = timeout_us
+        self.width = 0
+        self.t_fall = 0
+        self._t_rise = 0
+        self._high = False
+        _irq(self.pin, self._edge, Pin.IRQ_RISING | Pin.IRQ_FALLING)
+
+    def _edge(self, pin):
+        t = time.ticks_us()
+        if pin.value():
+            self._t_rise = t
+            self._high = True
+        elif self._high:
+            self._high = False
+            w = time.ticks_diff(t, self._t_rise)
+            if _MIN_PULSE_US <= w <= _MAX_PULSE_US:
+                self.width = w
+                self.t_fall = t
+
+    def read(self, now):
+        # 0 when no valid pulse arrived within the timeout (receiver off, servo unplugged).
+        if time.ticks_diff(now, self.t_fall) > self.timeout_us:
+            return 0
+        return self.width
+
+
+class HallCounter:
+    """Hall wheel-speed sensor: pulse count and the time of the latest pulse."""
+
+    def __init__(self, pin_no):
+        self.pin = Pin(pin_no, Pin.IN, Pin.PULL_UP)
+        self.count = 0
+        self.t_last = 0
+        _irq(self.pin, self._edge, Pin.IRQ_FALLING)
+
+    def _edge(self, pin):
+        self.t_last = time.ticks_us() & _MASK30
+        self.count = (self.count + 1) & 0xFFFF
