@@ -10,7 +10,7 @@
 # ESP32 DevKit: ADC1 (GPIO32-39; ADC2 is unusable with WiFi). 11 dB attenuation
 # converts ~0.15-2.45 V linearly only, and the reference is not the sensor supply,
 # so we send read_uv() in millivolts and HELLO states the clip voltage. An ADXL335
-# on 3.3 V swings to 2.64 V at +3 g: beyond +2.7 g (x, y) the reading clips.
+# on 3.3 V swings to 2.64 V at +3 g: beyond +2.4 g (x, y) the reading clips.
 from machine import ADC, Pin
 
 PROFILES = {

@@ -151,6 +151,8 @@ def write_txt(cases, path):
             lines.append(f"frame {f['type']} {f['seq']} {f['t_us']} {f['body']}")
         errs = " ".join(f"{k}={v}" for k, v in sorted(c["errors"].items()))
         lines.append(f"errors {errs}".rstrip())
+        if c["encode"]:
+            lines.append("encode")
         lines.append("end")
     path.write_text("\n".join(lines) + "\n")
 

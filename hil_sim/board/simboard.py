@@ -67,6 +67,9 @@ class Board:
         self.steer_high = False
         self.hall_pin = s.h["hall_pin"]
         self.hall_i = 0
+        # every key present up front: a first insert while firing events would allocate
+        self.pin_level[self.steer_pin] = 0
+        self.pin_level[self.hall_pin] = 1
         self.stalls = s.h.get("stalls", [])
         self.stall_i = 0
         self.row = -1

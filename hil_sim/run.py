@@ -1,0 +1,80 @@
+"""One simulated run: manoeuvre -> truth dynamics -> sensors -> stimulus for the
+simulated board, plus the truth that the tests (and only the tests) may read."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hil_sim import manoeuvres, sensors, vehicle
+from hil_sim.stimulus import Stimulus
+
+# The wiring of the simulated car (as firmware/README.md tells a builder to wire it).
+WIRING = {
+    "pico": {"ax": 26, "ay": 27, "yaw": 28, "steer": 2, "hall": 3},
+    "esp32": {"ax": 32, "ay": 33, "az": 34, "yaw": 35, "vbat": 36, "steer": 25, "hall": 26},
+}
+
+
+@dataclass
+class SimConfig:
+    plan: manoeuvres.Plan = field(default_factory=manoeuvres.Plan)
+    effects: tuple = ()
+    seed: int = 0
+    board: str = "pico"
+    rate_hz: int = 500
+    batch: int = 10
+    ring_size: int = 256
+    dt: float = 1e-3  # s, truth integration step
+    fs_sig: int = 5000  # Hz, pin voltage grid
+    start_ticks: int = 0
+    stalls: tuple = ()  # ((at_s, for_s), ...): the host stops reading (MCU overrun)
+    car: vehicle.CarParams = field(default_factory=vehicle.CarParams)
+    sens: sensors.SensorParams = field(default_factory=sensors.SensorParams)
+
+
+@dataclass
+class SimRun:
+    cfg: SimConfig
+    traj: vehicle.Trajectory
+    stimulus: Stimulus
+    manoeuvre: manoeuvres.Manoeuvre
+
+    def truth(self) -> dict:
+        """Parameters and effects of this run: for tests and benchmarks only."""
+        c = self.cfg
+        return {
+            "car": c.car.as_dict(), "sensors": c.sens.as_dict(), "effects": sorted(c.effects),
+            "manoeuvre": asdict(c.plan), "seed": c.seed, "board": c.board, "rate_hz": c.rate_hz,
+            "wiring": WIRING[c.board],
+        }
+
+
+def simulate_run(cfg: SimConfig) -> SimRun:
+    if cfg.board not in WIRING:
+        raise ValueError(f"unknown board {cfg.board!r}; choose one of {', '.join(WIRING)}")
+    effects = vehicle.Effects(set(cfg.effects))
+    rng = np.random.default_rng(cfg.seed)
+    man = manoeuvres.build(cfg.plan, cfg.dt, rng)
+    driver = None
+    if man.path is not None:
+        L = cfg.car.L
+        driver = lambda x, y, psi, vx: manoeuvres.pure_pursuit(man.path, x, y, psi, vx, L)  # noqa: E731
+    traj = vehicle.simulate(cfg.car, effects, man.t, man.delta_cmd, man.v_ref, driver=driver)
+    t_bias = cfg.plan.still
+    tg, volts = sensors.pin_voltages(traj, cfg.car, effects, cfg.sens, cfg.fs_sig, rng, t_bias)
+    wiring = WIRING[cfg.board]
+    pins = {wiring[ch]: volts[ch] for ch in ("ax", "ay", "az", "yaw", "vbat") if ch in wiring}
+    stim = Stimulus(board=cfg.board, fs_sig=cfg.fs_sig, volts=pins, steer_us=traj.steer_pulses_us,
+                    hall_t_us=sensors.hall_edges_us(traj, cfg.car), steer_pin=wiring["steer"],
+                    hall_pin=wiring["hall"], steer_period_us=cfg.car.servo_period_us,
+                    steer_phase_us=cfg.car.servo_phase_us, start_ticks=cfg.start_ticks,
+                    stalls=[(int(a * 1e6), int(b * 1e6)) for a, b in cfg.stalls])
+    return SimRun(cfg, traj, stim, man)
+
+
+def write_truth(run: SimRun, path: Path) -> None:
+    Path(path).write_text(json.dumps(run.truth(), indent=1) + "\n")

@@ -1,0 +1,113 @@
+"""Sensor models from the datasheets: truth motion -> pin voltages.
+
+ADXL335 (ratiometric): zero g at Vs/2, sensitivity Vs/10 per g (300 mV/g at 3 V),
+noise 150 ug/sqrt(Hz) on x, y and 300 ug/sqrt(Hz) on z, bandwidth set by the
+output capacitor with the internal 32 kOhm (0.1 uF -> 50 Hz), output clipped to
+the rails. LISY300AL (absolute): 1.65 V at zero rate, 3.3 mV per deg/s, +-300
+deg/s, internal low-pass ~88 Hz; noise density assumed 0.05 deg/s/sqrt(Hz)
+(not found in a datasheet; stated here). The board's ADC (bits, reference,
+clipping) is modelled by the simulated board, not here.
+
+Accelerometers measure specific force in the body frame. With the body rolled by
+phi (right side down positive, ISO 8855 x axis), the y axis tilts and sees
+ay cos(phi) + g sin(phi).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from hil_sim.vehicle import G, CarParams, Effects, Trajectory
+
+
+@dataclass
+class SensorParams:
+    vs: float = 3.3  # V, sensor supply = ADC reference
+    acc_noise_xy: float = 150e-6  # g/sqrt(Hz)
+    acc_noise_z: float = 300e-6
+    acc_bandwidth: float = 50.0  # Hz (0.1 uF output capacitors)
+    gyro_zero: float = 1.65  # V
+    gyro_sens: float = 3.3e-3  # V per deg/s
+    gyro_noise: float = 0.05  # deg/s/sqrt(Hz)
+    gyro_bandwidth: float = 88.0  # Hz
+    vib_engine_hz: float = 180.0  # Hz, engine/drivetrain vibration at speed
+    vib_engine_amp: float = 3.0  # m/s^2 on the accelerometer before its filter
+    vib_road_rms: float = 0.6  # m/s^2 broadband road roughness at 4 m/s
+    vbat: float = 7.4  # V, two-cell LiPo
+    vbat_divider: float = 0.25  # V at the pin per V of battery
+
+    def acc_sens(self) -> float:
+        return self.vs / 10.0  # V per g, ratiometric
+
+    def as_dict(self):
+        from dataclasses import asdict
+
+        return asdict(self)
+
+
+def _lowpass(x, fc, fs):
+    b, a = signal.butter(1, fc, fs=fs)
+    return signal.lfilter(b, a, x - x[0]) + x[0]
+
+
+def body_signals(traj: Trajectory, car: CarParams, effects: Effects, t_start_bias: float):
+    """Specific force and yaw rate the sensors see, before sensor imperfections."""
+    ax = traj.ax.copy()
+    ay = traj.ay.copy()
+    r = traj.r.copy()
+    az = np.full_like(ax, G)
+    if "accel_offset" in effects:
+        ay = ay + car.x_acc * traj.r_dot
+        ax = ax - car.x_acc * traj.r ** 2
+    if "body_roll" in effects:
+        ay = ay * np.cos(traj.phi) + G * np.sin(traj.phi)
+        az = az * np.cos(traj.phi) - traj.ay * np.sin(traj.phi)
+    if "sensor_bias" in effects:
+        # thermal offset that drifts in after the still phase: a stand-still
+        # calibration at the start of the run does not remove it
+        ramp = np.clip((traj.t - t_start_bias) / car.bias_ramp_s, 0, 1)
+        r = r + car.bias_r * ramp
+        ay = ay + car.bias_ay * ramp
+    return ax, ay, az, r
+
+
+def pin_voltages(traj: Trajectory, car: CarParams, effects: Effects, sens: SensorParams,
+                 fs_sig: int, rng: np.random.Generator, t_start_bias: float):
+    """Voltages of every analog output on a grid of ``fs_sig`` Hz.
+
+    Returns (t_grid, dict name -> volts) with names ax, ay, az, yaw, vbat.
+    """
+    ax, ay, az, r = body_signals(traj, car, effects, t_start_bias)
+    tg = np.arange(int(traj.t[-1] * fs_sig) + 1) / fs_sig
+    interp = lambda x: np.interp(tg, traj.t, x)  # noqa: E731
+    ax, ay, az, r, vx = map(interp, (ax, ay, az, r, traj.vx))
+    n = len(tg)
+    if "vibration" in effects:
+        moving = np.clip(vx / 4.0, 0, 2)
+        eng = sens.vib_engine_amp * moving * np.sin(2 * math.pi * sens.vib_engine_hz * tg * (0.7 + 0.3 * moving / 2))
+        road = sens.vib_road_rms * moving * rng.standard_normal((3, n))
+        ax = ax + 0.5 * eng + road[0]
+        ay = ay + eng + road[1]
+        az = az + 2 * eng + road[2]
+    white = math.sqrt(fs_sig / 2.0)
+    s = sens.acc_sens()
+    out = {}
+    for name, a, nd in (("ax", ax, sens.acc_noise_xy), ("ay", ay, sens.acc_noise_xy), ("az", az, sens.acc_noise_z)):
+        v = sens.vs / 2 + s * (a / G + nd * white * rng.standard_normal(n))
+        out[name] = np.clip(_lowpass(v, sens.acc_bandwidth, fs_sig), 0.0, sens.vs)
+    rate_dps = np.degrees(r) + sens.gyro_noise * white * rng.standard_normal(n)
+    v = sens.gyro_zero + sens.gyro_sens * np.clip(rate_dps, -300, 300)
+    out["yaw"] = _lowpass(v, sens.gyro_bandwidth, fs_sig)
+    out["vbat"] = np.full(n, sens.vbat * sens.vbat_divider)
+    return tg, out
+
+
+def hall_edges_us(traj: Trajectory, car: CarParams, pulses_per_rev: int = 1) -> np.ndarray:
+    """Times [us] at which the rear-wheel magnet passes the hall sensor."""
+    circ = 2 * math.pi * car.wheel_radius / pulses_per_rev
+    k = np.arange(1, int(traj.s[-1] // circ) + 1) * circ
+    return np.round(np.interp(k, traj.s, traj.t) * 1e6).astype(np.int64)

@@ -1,0 +1,228 @@
+"""Truth dynamics of the simulated car: a nonlinear single-track vehicle.
+
+States: position X, Y and heading psi (world), body velocities vx, vy and yaw rate
+r, the front road-wheel angle delta, the axle side forces Fyf, Fyr (when tyres
+relax), the roll angle phi and its rate, and the distance travelled s (for the
+hall sensor). ISO 8855 axes: x forward, y left, z up; left turns positive.
+
+Effects are switched on one by one (``Effects``); with all of them off the truth
+is the linear single-track model with a speed controller, so an identifier that
+fits that model should recover Cf, Cr and Iz exactly up to noise.
+
+This module is the simulator's own physics. It must not import ``stid``: a hidden
+effect is only a test if the identifier was written without this code.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+G = 9.81
+
+EFFECT_NAMES = ("actuator_lag", "tyre_relaxation", "body_roll", "accel_offset",
+                "tyre_saturation", "sensor_bias", "vibration")
+
+
+@dataclass
+class CarParams:
+    """The reference 1:8 car (mass and axle positions from the scaled-car study).
+
+    Iz and the cornering stiffnesses are not in the study; they are chosen
+    plausible for a 9.3 kg, 0.52 m wheelbase car: Iz = 0.25 kg m^2 (a box of the
+    car's size, 0.55 x 0.30 m, with mass concentrated toward the centre), and a
+    normalised cornering stiffness of ~8 /rad front and ~11.6 /rad rear (axle
+    load 50.5 N front, 40.8 N rear): Cf = 400 N/rad, Cr = 475 N/rad per axle,
+    which understeers slightly, as RC cars are set up to.
+    """
+
+    mass: float = 9.31  # kg
+    a: float = 0.2326  # m, CG to front axle
+    b: float = 0.2874  # m, CG to rear axle
+    Iz: float = 0.25  # kg m^2
+    Cf: float = 400.0  # N/rad, front axle
+    Cr: float = 475.0  # N/rad, rear axle
+    wheel_radius: float = 0.045  # m
+    # effect magnitudes (used only when the effect is on)
+    tau_steer: float = 0.06  # s, servo first-order lag
+    steer_rate_max: float = 6.0  # rad/s at the road wheel (~0.1 s per 60 deg servo)
+    sigma_f: float = 0.12  # m, front relaxation length
+    sigma_r: float = 0.10  # m, rear relaxation length
+    roll_gain: float = 3.0 * math.pi / 180 / G  # rad of roll per m/s^2 of ay (3 deg/g)
+    roll_freq: float = 4.0  # Hz, undamped roll natural frequency
+    roll_damping: float = 0.4  # -, roll damping ratio
+    x_acc: float = 0.08  # m, accelerometer ahead of the CG
+    mu: float = 0.9  # -, tyre-road friction (saturation)
+    mf_shape: float = 1.3  # -, magic-formula shape factor C
+    bias_r: float = 0.03  # rad/s gyro bias appearing after start-up (~1.7 deg/s)
+    bias_ay: float = 0.25  # m/s^2 accelerometer y bias appearing after start-up
+    bias_ramp_s: float = 4.0  # s, how fast the thermal bias drifts in after the still phase
+    # steering servo pulse: centre and gain from road-wheel angle (500 us per 25 deg)
+    steer_center_us: float = 1500.0
+    steer_us_per_rad: float = 500.0 / math.radians(25.0)
+    servo_period_us: int = 20000
+    servo_phase_us: int = 3000
+
+    @property
+    def L(self) -> float:
+        return self.a + self.b
+
+    def axle_loads(self):
+        return self.mass * G * self.b / self.L, self.mass * G * self.a / self.L
+
+    def as_dict(self):
+        return asdict(self)
+
+
+@dataclass
+class Effects:
+    on: set = field(default_factory=set)
+
+    def __post_init__(self):
+        unknown = set(self.on) - set(EFFECT_NAMES)
+        if unknown:
+            raise ValueError(f"unknown effect(s) {sorted(unknown)}; known: {', '.join(EFFECT_NAMES)}")
+
+    def __contains__(self, name):
+        return name in self.on
+
+
+@dataclass
+class Trajectory:
+    """Truth signals on the simulation grid."""
+
+    t: np.ndarray
+    delta_cmd: np.ndarray  # rad, commanded road-wheel angle as the servo receives it
+    delta: np.ndarray  # rad, actual road-wheel angle
+    vx: np.ndarray
+    vy: np.ndarray
+    r: np.ndarray
+    r_dot: np.ndarray
+    ax: np.ndarray  # m/s^2 at the CG, body frame (dvx/dt - vy r)
+    ay: np.ndarray  # m/s^2 at the CG, body frame (dvy/dt + vx r)
+    phi: np.ndarray  # rad, roll angle (positive: right side down, as in a left turn)
+    s: np.ndarray  # m, distance travelled by the rear wheels
+    x: np.ndarray
+    y: np.ndarray
+    psi: np.ndarray
+    steer_pulses_us: np.ndarray  # one servo pulse width per servo period
+
+
+def _mf(alpha, C, Fz, mu, shape):
+    """Magic-formula side force with the given cornering stiffness at small slip."""
+    D = mu * Fz
+    B = C / (shape * D)
+    return D * math.sin(shape * math.atan(B * alpha))
+
+
+def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.ndarray,
+             v_ref: np.ndarray, driver=None) -> Trajectory:
+    """Integrate the car over the grid ``t`` (uniform, starting at 0) with RK4.
+
+    ``steer_plan`` is the road-wheel angle the driver wants [rad] on the grid, or
+    ``driver(x, y, psi, vx)`` returns it in closed loop. Either way the servo
+    receives it as a 50 Hz train of integer-microsecond pulses, and that held,
+    quantised command is what the truth applies (and what the car's firmware
+    measures). ``v_ref`` is the speed the throttle holds [m/s].
+    """
+    dt = float(t[1] - t[0])
+    n = len(t)
+    m, a, b, Iz, Cf, Cr = car.mass, car.a, car.b, car.Iz, car.Cf, car.Cr
+    Fzf, Fzr = car.axle_loads()
+    lag = "actuator_lag" in effects
+    relax = "tyre_relaxation" in effects
+    roll = "body_roll" in effects
+    sat = "tyre_saturation" in effects
+    wn = 2 * math.pi * car.roll_freq
+    zeta = car.roll_damping
+    k_speed = 4.0  # 1/s, speed loop gain (throttle driver)
+
+    def side_forces_ss(vx, vy, r, delta):
+        vxe = max(vx, 0.3)  # below walking pace the slip angles are meaningless
+        af = delta - math.atan2(vy + a * r, vxe)
+        ar = -math.atan2(vy - b * r, vxe)
+        if sat:
+            return _mf(af, Cf, Fzf, car.mu, car.mf_shape), _mf(ar, Cr, Fzr, car.mu, car.mf_shape)
+        return Cf * af, Cr * ar
+
+    def rhs(state, dcmd, vref):
+        X, Y, psi, vx, vy, r, delta, Fyf, Fyr, phi, phid, s, vint = state
+        if lag:
+            ddelta = (dcmd - delta) / car.tau_steer
+            ddelta = max(-car.steer_rate_max, min(car.steer_rate_max, ddelta))
+        else:
+            ddelta = 0.0
+            delta = dcmd
+        Ff_ss, Fr_ss = side_forces_ss(vx, vy, r, delta)
+        if relax:
+            vxe = max(vx, 0.3)
+            dFyf = vxe / car.sigma_f * (Ff_ss - Fyf)
+            dFyr = vxe / car.sigma_r * (Fr_ss - Fyr)
+        else:
+            Fyf, Fyr = Ff_ss, Fr_ss
+            dFyf = dFyr = 0.0
+        if vx < 0.05 and vref <= 0.0:  # parked: nothing moves
+            Fyf = Fyr = 0.0
+        # throttle/brake: PI speed loop on the rear axle force
+        err = vref - vx
+        Fx = m * (k_speed * err + 1.0 * vint)
+        Fx = max(-m * 6.0, min(m * 6.0, Fx))
+        if vx <= 0.0 and Fx < 0.0:
+            Fx = 0.0
+        cd, sd = math.cos(delta), math.sin(delta)
+        dvx = (Fx - Fyf * sd) / m + vy * r
+        dvy = (Fyf * cd + Fyr) / m - vx * r
+        dr = (a * Fyf * cd - b * Fyr) / Iz
+        ay = dvy + vx * r
+        if roll:
+            dphid = -2 * zeta * wn * phid - wn * wn * (phi - car.roll_gain * ay)
+        else:
+            dphid = 0.0
+        cp, sp = math.cos(psi), math.sin(psi)
+        return (vx * cp - vy * sp, vx * sp + vy * cp, r, dvx, dvy, dr, ddelta, dFyf, dFyr,
+                phid, dphid, vx, err), (Fyf, Fyr, delta, dvx, dvy, dr)
+
+    out = np.zeros((n, 13))
+    aux = np.zeros((n, 6))
+    delta_cmd = np.zeros(n)
+    period = car.servo_period_us * 1e-6
+    n_pulses = int(t[-1] // period) + 1
+    pulses = np.zeros(n_pulses, dtype=np.int64)
+    k_next = 0
+    dc = 0.0
+    state = [0.0] * 13
+    for i in range(n):
+        # the servo takes a new command at the end of each pulse
+        while k_next < n_pulses and t[i] >= car.servo_phase_us * 1e-6 + k_next * period + 0.0015:
+            want = driver(state[0], state[1], state[2], state[3]) if driver else float(steer_plan[i])
+            us = int(round(car.steer_center_us + want * car.steer_us_per_rad))
+            us = max(900, min(2100, us))
+            pulses[k_next] = us
+            dc = (us - car.steer_center_us) / car.steer_us_per_rad
+            k_next += 1
+        if i == 0:
+            state[6] = dc
+        delta_cmd[i] = dc
+        vr = float(v_ref[i])
+        k1, ax1 = rhs(state, dc, vr)
+        out[i] = state
+        aux[i] = ax1
+        s2 = [x + 0.5 * dt * k for x, k in zip(state, k1)]
+        k2, _ = rhs(s2, dc, vr)
+        s3 = [x + 0.5 * dt * k for x, k in zip(state, k2)]
+        k3, _ = rhs(s3, dc, vr)
+        s4 = [x + dt * k for x, k in zip(state, k3)]
+        k4, _ = rhs(s4, dc, vr)
+        state = [x + dt / 6.0 * (p + 2 * q + 2 * u + w) for x, p, q, u, w in zip(state, k1, k2, k3, k4)]
+        if not lag:
+            state[6] = dc
+        if state[3] < 0.0:
+            state[3] = 0.0
+    X, Y, psi, vx, vy, r = (out[:, k] for k in range(6))
+    dvx, dvy, dr = aux[:, 3], aux[:, 4], aux[:, 5]
+    pulses[k_next:] = pulses[k_next - 1] if k_next else int(car.steer_center_us)
+    return Trajectory(t=t, delta_cmd=delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
+                      r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
+                      x=X, y=Y, psi=psi, steer_pulses_us=pulses)

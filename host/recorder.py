@@ -1,0 +1,138 @@
+"""Bytes in, MCAP out: decode, unwrap MCU time, fit the clock, keep statistics.
+
+Used by ``stid-log`` on a serial port and by the simulator's fast mode on the
+firmware's byte stream, so both produce the same files.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from host import protocol as p
+from host import units
+from host.clock import ClockModel, TickUnwrapper
+from host.frame_decoder import FrameDecoder
+from host.mcap_log import McapLog
+
+UNKNOWN_BOOT = "?"
+
+
+class _Boot:
+    def __init__(self, boot_id: str):
+        self.id = boot_id
+        self.ticks = TickUnwrapper()
+        self.clock = ClockModel()
+        self.last_index: int | None = None
+        self.hello: dict | None = None
+        self.fit: dict | None = None
+        self.frames = 0
+
+    def clock_fit(self) -> dict:
+        # refitting is a least-squares solve: do it every 50 frames, not every frame
+        self.frames += 1
+        if self.fit is None or self.frames % 50 == 0:
+            self.fit = self.clock.fit()
+        return self.fit
+
+
+class Recorder:
+    """Feed it what the port delivered; it writes everything to ``log``."""
+
+    def __init__(self, log: McapLog):
+        self.log = log
+        self.decoder = FrameDecoder()
+        self.boot = _Boot(UNKNOWN_BOOT)
+        self.boots: list[_Boot] = [self.boot]
+        self.hello: dict = {}
+        self.samples = 0
+        self.mcu_dropped = 0  # samples the firmware dropped (index gaps)
+        self.last_status: dict | None = None
+        self.latest = {"ay": float("nan"), "r": float("nan")}
+        self.gaps: list[dict] = []
+
+    @property
+    def stats(self):
+        return self.decoder.stats
+
+    def feed(self, data: bytes, host_ns: int) -> None:
+        if not data:
+            return
+        self.log.raw(data, host_ns)
+        for fr in self.decoder.feed(data):
+            self._frame(fr, host_ns)
+
+    def _new_boot(self, boot_id: str, host_ns: int, reason: str) -> None:
+        if self.boot.id == UNKNOWN_BOOT and self.boot.last_index is not None and reason == "hello":
+            # samples arrived before the first HELLO: they belong to this boot
+            self.boot.id = boot_id
+            return
+        self.boot = _Boot(boot_id)
+        self.boots.append(self.boot)
+        self.event("boot", host_ns, f"firmware boot {boot_id} ({reason})")
+
+    def _frame(self, fr, host_ns: int) -> None:
+        self.log.frame(fr.payload, host_ns)
+        host_us = host_ns / 1000.0
+        if fr.type == p.HELLO:
+            doc = fr.hello()
+            bid = str(doc.get("boot_id", UNKNOWN_BOOT))
+            if bid != self.boot.id:
+                self._new_boot(bid, host_ns, "hello")
+            if self.boot.hello is None:
+                self.boot.hello = doc
+                self.log.metadata("stid.hello", {**{k: v for k, v in doc.items()}, "boot_id": bid})
+            self.hello = doc
+            self.log.json("hello", doc, host_ns)
+        elif fr.type == p.STATUS:
+            st = fr.status()
+            self.last_status = st
+            self.log.json("status", {**st, "boot": self.boot.id, "seq": fr.seq}, host_ns)
+        elif fr.type == p.SAMPLES:
+            self._samples(fr, host_ns, host_us)
+
+    def _samples(self, fr, host_ns: int, host_us: float) -> None:
+        index = fr.samples_index()
+        arr = np.frombuffer(fr.samples_bytes(), dtype=p.SAMPLE_DTYPE)
+        b = self.boot
+        if b.last_index is not None:
+            gap = (index - b.last_index - 1) % p.MOD
+            if gap > p.MOD // 2:  # index went back: the firmware restarted without a HELLO yet
+                self._new_boot(f"{UNKNOWN_BOOT}{len(self.boots)}", host_ns, "sample index restarted")
+                b = self.boot
+            else:
+                self.mcu_dropped += gap
+        t_mcu = b.ticks.unwrap_array(arr["t_us"], host_us)
+        # the last sample was taken before the frame was sent: its host time is an upper bound
+        b.clock.add(float(t_mcu[-1]), host_us)
+        b.last_index = (index + len(arr) - 1) % p.MOD
+        self.samples += len(arr)
+        fit = b.clock_fit()
+        log_ns = np.minimum((b.clock.to_host_us(t_mcu, fit) * 1000).astype(np.int64), host_ns)
+        doc = {"boot": b.id, "index": index, "n": len(arr), "t_mcu_us": t_mcu.tolist(),
+               "t_host_ns": log_ns.tolist()}
+        for name in p.SAMPLE_FIELDS[1:]:
+            doc[name] = arr[name].tolist()
+        self.log.json("samples", doc, int(log_ns[0]))
+        if self.hello:
+            self.latest["ay"] = float(units.accel_si(arr["ay"][-1:], self.hello)[0])
+            self.latest["r"] = float(units.yaw_rate_si(arr["yaw"][-1:], self.hello)[0])
+
+    def event(self, name: str, host_ns: int, detail: str = "") -> None:
+        self.log.json("events", {"event": name, "detail": detail, "boot": self.boot.id}, host_ns)
+
+    def stats_doc(self) -> dict:
+        d = self.stats.as_dict()
+        d.update({"samples": self.samples, "mcu_dropped_samples": self.mcu_dropped,
+                  "mcu_overruns": (self.last_status or {}).get("overruns"),
+                  "gaps": self.gaps})
+        return d
+
+    def write_stats(self, host_ns: int) -> None:
+        self.log.json("stats", self.stats_doc(), host_ns)
+
+    def finish(self, host_ns: int) -> dict:
+        stats = self.stats_doc()
+        self.log.json("stats", stats, host_ns)
+        self.log.metadata("stid.stats", stats)
+        self.log.metadata("stid.clock", {b.id: b.clock.fit() for b in self.boots if b.clock._bins})
+        return stats

@@ -1,0 +1,92 @@
+"""Datasheet defaults: raw counts -> volts -> SI, from the HELLO content.
+
+This is the conversion the logger uses for its status line and ``stid export``
+uses until ``stid calibrate`` refines offsets and sensitivities.
+
+ADXL335: ratiometric, zero g at Vs/2, Vs/10 per g (300 mV/g at 3 V). On our
+boards the sensor supply is the ADC reference, so Vs = vref.
+LISY300AL: absolute, 1.65 V at zero rate, 3.3 mV per deg/s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+G = 9.81
+MISSING = 0xFFFF
+GYRO_ZERO_V = 1.65
+GYRO_V_PER_DPS = 3.3e-3
+
+
+def counts_to_volts(counts, hello: dict):
+    adc = hello.get("adc", {})
+    c = np.asarray(counts, dtype=float)
+    c = np.where(c == MISSING, np.nan, c)
+    if adc.get("unit") == "mV":
+        return c / 1000.0
+    bits = int(adc.get("bits", 12))
+    return c / ((1 << bits) - 1) * float(adc.get("vref", 3.3))
+
+
+def supply_volts(hello: dict) -> float:
+    return float(hello.get("adc", {}).get("vref", 3.3))
+
+
+def accel_si(counts, hello: dict):
+    """ADXL335 counts -> specific force [m/s^2] with datasheet zero and sensitivity."""
+    vs = supply_volts(hello)
+    v = counts_to_volts(counts, hello)
+    return (v / vs - 0.5) * 10.0 * G
+
+
+def yaw_rate_si(counts, hello: dict):
+    """LISY300AL counts -> yaw rate [rad/s] with datasheet zero and sensitivity."""
+    v = counts_to_volts(counts, hello)
+    return np.radians((v - GYRO_ZERO_V) / GYRO_V_PER_DPS)
+
+
+def clipped(counts, hello: dict):
+    """True where a reading sits at the ADC's end of range (or the ESP32's linear limit)."""
+    c = np.asarray(counts)
+    v = counts_to_volts(c, hello)
+    adc = hello.get("adc", {})
+    top = (1 << int(adc.get("bits", 12))) - 1
+    clip_v = hello.get("adc_clip_v")
+    out = (c == 0) | ((c == top) & (adc.get("unit") != "mV"))
+    if clip_v:
+        out |= v >= float(clip_v) - 0.005
+    return out & (c != MISSING)
+
+
+def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int, radius: float,
+                mod: int = 1 << 30):
+    """Wheel ground speed [m/s] from hall pulse counts and the time of the latest pulse.
+
+    ``t_mcu_us`` is the unwrapped sample time, ``t_raw_us`` the same time as sent
+    (mod 2^30); the edge time is unwrapped against it. Between two edges the speed
+    is (pulses between them) x (distance per pulse) / (time between them), which is
+    exact to the edge timestamps rather than to the sample period. When no edge
+    has come for longer than twice the last period, the wheel is slowing: the
+    speed is bounded by one pulse over the time since the last edge.
+    """
+    t = np.asarray(t_mcu_us, dtype=np.int64)
+    age = (np.asarray(t_raw_us, dtype=np.int64) - np.asarray(wheel_t_us, dtype=np.int64)) % mod
+    edge = t - age  # unwrapped time of the latest edge, per sample
+    total = np.concatenate([[0], np.cumsum(np.diff(np.asarray(wheel_count, dtype=np.int64)) % 65536)])
+    per_pulse = 2 * math.pi * radius / pulses_per_rev
+    new = np.flatnonzero(np.diff(total) > 0) + 1  # samples at which pulses arrived
+    v = np.zeros(len(t))
+    if len(new) < 2:
+        return v
+    dt = np.diff(edge[new]) * 1e-6
+    dn = np.diff(total[new])
+    seg_v = np.where(dt > 0, dn * per_pulse / np.where(dt > 0, dt, 1), 0.0)
+    seg = np.searchsorted(new[1:], np.arange(len(t)), side="right") - 1  # latest complete segment
+    v = np.where(seg >= 0, seg_v[np.maximum(seg, 0)], 0.0)
+    since = (t - edge) * 1e-6
+    period = np.where(v > 0, per_pulse / np.where(v > 0, v, 1), np.inf)
+    slowing = since > 2 * period
+    v = np.where(slowing, np.minimum(v, per_pulse / np.maximum(since, 1e-6)), v)
+    return v

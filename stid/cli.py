@@ -1,0 +1,92 @@
+"""The ``stid`` command. Each subcommand parses its arguments and calls a plain
+function (which the tests call directly); user errors end in one line on stderr
+and a non-zero exit, never a traceback."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from host.errors import HostError
+from stid.errors import StidError
+
+NOT_YET = {
+    "calibrate": "estimate sensor offsets and mounting from a stand-still run",
+    "fit": "fit the single-track model to runs",
+    "compare": "compare models against measurements",
+    "diagnose": "name the physical effect the model is missing",
+    "report": "write an HTML report",
+    "plan": "design a test from the Cramér-Rao bound",
+    "batch": "fit many runs in parallel",
+}
+
+
+def _cmd_flash(args) -> int:
+    from stid.flash import flash
+
+    return flash(args.board, port=args.port, dry_run=args.dry_run, rate_hz=args.rate, batch=args.batch)
+
+
+def _cmd_export(args) -> int:
+    from stid.export import export_csv
+
+    return export_csv(args.run, args.csv)
+
+
+def _cmd_repair(args) -> int:
+    from host.repair import repair_cli
+
+    return repair_cli(args.file, args.output)
+
+
+def _not_yet(name):
+    def run(args) -> int:
+        raise StidError(f"'stid {name}' is not implemented yet in this version; "
+                        "see the project's open issues")
+    return run
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="stid", description=__doc__.split("\n\n")[0].replace("\n", " "))
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("flash", help="precompile the firmware and copy it to a board")
+    p.add_argument("--board", required=True, choices=["pico", "esp32"])
+    p.add_argument("--port", help="serial port of the board (default: mpremote's auto)")
+    p.add_argument("--rate", type=int, default=500, help="sample rate [Hz] (default 500)")
+    p.add_argument("--batch", type=int, default=10, help="samples per frame (default 10)")
+    p.add_argument("--dry-run", action="store_true", help="print what would be done, do nothing")
+    p.set_defaults(func=_cmd_flash)
+
+    p = sub.add_parser("export", help="write a logged run as CSV in SI units (the import contract)")
+    p.add_argument("run", help="RUN.mcap written by stid-log")
+    p.add_argument("--csv", required=True, help="output CSV path")
+    p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("repair", help="rewrite a truncated MCAP file (logger killed) into a complete one")
+    p.add_argument("file")
+    p.add_argument("-o", "--output", help="output path (default: FILE with .repaired.mcap)")
+    p.set_defaults(func=_cmd_repair)
+
+    for name, text in NOT_YET.items():
+        p = sub.add_parser(name, help=f"{text} (not yet implemented)")
+        p.add_argument("args", nargs="*")
+        p.set_defaults(func=_not_yet(name))
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (StidError, HostError) as e:
+        print(f"stid {args.command}: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

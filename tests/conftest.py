@@ -1,0 +1,62 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+FIRMWARE = REPO / "firmware" / "micropython"
+BOARD = REPO / "hil_sim" / "board"
+MP_TESTS = Path(__file__).resolve().parent / "firmware_mp"
+VECTORS = REPO / "firmware" / "vectors" / "vectors.json"
+
+
+def tool(name: str) -> str:
+    """A console tool of this environment (the venv's bin, then PATH)."""
+    here = Path(sys.executable).parent / name
+    return str(here) if here.exists() else name
+
+
+def run_micropython(script: Path, *args, stimulus: Path | None = None, board: bool = False,
+                    timeout: float = 120) -> subprocess.CompletedProcess:
+    path = [str(MP_TESTS), str(FIRMWARE)]
+    if board:
+        path.insert(0, str(BOARD))
+    env = dict(os.environ, MICROPYPATH=":".join(path))
+    if stimulus is not None:
+        env["STID_SIM_STIMULUS"] = str(stimulus)
+    return subprocess.run([tool("micropython"), "-X", "heapsize=32M", str(script), *map(str, args)],
+                          capture_output=True, text=True, env=env, timeout=timeout)
+
+
+def simple_stimulus(path: Path, board: str = "pico", seconds: float = 3.0, fs: int = 5000,
+                    start_ticks: int = 0, stalls=()):
+    """A small stimulus with recognisable signals on every pin of the board."""
+    from hil_sim.stimulus import Stimulus
+
+    n = int(seconds * fs)
+    t = np.arange(n) / fs
+    if board == "pico":
+        pins = {26: 1.65 + 0.2 * np.sin(2 * np.pi * 1.3 * t), 27: 1.65 + 0.4 * np.sin(2 * np.pi * 0.7 * t),
+                28: 1.65 + 0.5 * np.sin(2 * np.pi * 2.1 * t)}
+        steer_pin, hall_pin = 2, 3
+    else:
+        pins = {32: 1.65 + 0.2 * np.sin(t), 33: 1.65 + 1.0 * np.sin(2 * t), 34: 1.98 + 0 * t,
+                35: 1.65 + 0.5 * np.sin(3 * t), 36: 1.2 + 0 * t}
+        steer_pin, hall_pin = 25, 26
+    periods = int(seconds * 50)
+    steer = (1500 + 400 * np.sin(np.arange(periods) / 10)).astype(int)
+    hall = np.arange(5_000, int(seconds * 1e6), 37_000)
+    st = Stimulus(board=board, fs_sig=fs, volts=pins, steer_us=steer, hall_t_us=hall,
+                  steer_pin=steer_pin, hall_pin=hall_pin, start_ticks=start_ticks, stalls=list(stalls))
+    st.write(path)
+    return st
+
+
+@pytest.fixture
+def stimulus_file(tmp_path):
+    path = tmp_path / "stim.bin"
+    simple_stimulus(path)
+    return path

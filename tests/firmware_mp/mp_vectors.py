@@ -1,0 +1,35 @@
+# The MicroPython encoder must reproduce every clean golden vector byte for byte.
+# usage: micropython mp_vectors.py VECTORS.json
+import json
+import struct
+import sys
+import binascii
+
+import codec
+from mptest import check, done
+
+doc = json.load(open(sys.argv[1]))
+check(codec.CRC_TABLE[4:8] == struct.pack("<I", 0x77073096), "crc table entry 1")
+for case in doc["cases"]:
+    if not case["encode"]:
+        continue
+    enc = codec.FrameEncoder()
+    wire = bytearray()
+    for fr in case["frames"]:
+        enc.seq = fr["seq"]
+        body = binascii.unhexlify(fr["body"])
+        if fr["type"] == codec.SAMPLES:
+            d = fr["decoded"]
+            off = enc.samples_begin(fr["t_us"], d["index"], len(d["samples"]))
+            for s in d["samples"]:
+                struct.pack_into(codec.SAMPLE_FMT, enc.raw, off, *[s[k] for k in doc["sample_fields"]])
+                off += codec.SAMPLE_SIZE
+            n = enc.finish(off - codec.HEADER_SIZE)
+        elif fr["type"] == codec.STATUS:
+            d = fr["decoded"]
+            n = enc.status(fr["t_us"], *[d[k] for k in doc["status_fields"]])
+        else:
+            n = enc.hello(fr["t_us"], body)
+        wire += enc.wire[:n]
+    check(binascii.hexlify(wire).decode() == case["wire"], "encode " + case["name"])
+done()
