@@ -26,6 +26,7 @@ class _Boot:
         self.hello: dict | None = None
         self.fit: dict | None = None
         self.frames = 0
+        self.overruns = 0
 
     def clock_fit(self) -> dict:
         # refitting is a least-squares solve: do it every 50 frames, not every frame
@@ -45,7 +46,7 @@ class Recorder:
         self.boots: list[_Boot] = [self.boot]
         self.hello: dict = {}
         self.samples = 0
-        self.mcu_dropped = 0  # samples the firmware dropped (index gaps)
+        self.missing_samples = 0  # gaps in the sample index: lost frames or car-side overruns
         self.last_status: dict | None = None
         self.latest = {"ay": float("nan"), "r": float("nan")}
         self.gaps: list[dict] = []
@@ -62,8 +63,8 @@ class Recorder:
             self._frame(fr, host_ns)
 
     def _new_boot(self, boot_id: str, host_ns: int, reason: str) -> None:
-        if self.boot.id == UNKNOWN_BOOT and self.boot.last_index is not None and reason == "hello":
-            # samples arrived before the first HELLO: they belong to this boot
+        if self.boot.id == UNKNOWN_BOOT and reason == "hello":
+            # the first HELLO names the boot we were already in (samples may have come first)
             self.boot.id = boot_id
             return
         self.boot = _Boot(boot_id)
@@ -86,6 +87,7 @@ class Recorder:
         elif fr.type == p.STATUS:
             st = fr.status()
             self.last_status = st
+            self.boot.overruns = st["overruns"]  # the firmware's own count since boot
             self.log.json("status", {**st, "boot": self.boot.id, "seq": fr.seq}, host_ns)
         elif fr.type == p.SAMPLES:
             self._samples(fr, host_ns, host_us)
@@ -100,7 +102,7 @@ class Recorder:
                 self._new_boot(f"{UNKNOWN_BOOT}{len(self.boots)}", host_ns, "sample index restarted")
                 b = self.boot
             else:
-                self.mcu_dropped += gap
+                self.missing_samples += gap
         t_mcu = b.ticks.unwrap_array(arr["t_us"], host_us)
         # the last sample was taken before the frame was sent: its host time is an upper bound
         b.clock.add(float(t_mcu[-1]), host_us)
@@ -122,9 +124,8 @@ class Recorder:
 
     def stats_doc(self) -> dict:
         d = self.stats.as_dict()
-        d.update({"samples": self.samples, "mcu_dropped_samples": self.mcu_dropped,
-                  "mcu_overruns": (self.last_status or {}).get("overruns"),
-                  "gaps": self.gaps})
+        d.update({"samples": self.samples, "missing_samples": self.missing_samples,
+                  "mcu_overruns": sum(b.overruns for b in self.boots), "gaps": self.gaps})
         return d
 
     def write_stats(self, host_ns: int) -> None:

@@ -1,0 +1,99 @@
+"""The ``stid-sim`` command: the simulated car on a pseudo-terminal, or straight to a file."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from hil_sim import manoeuvres, vehicle
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="stid-sim",
+        description="A simulated 1:8 car running the real firmware under MicroPython. Prints "
+                    "'port: /dev/pts/N' first, then streams in real time until --duration ends or Ctrl-C. "
+                    "With --fast -o RUN.mcap it records faster than real time instead.")
+    ap.add_argument("--manoeuvre", default="random_steer", choices=manoeuvres.MANOEUVRES)
+    ap.add_argument("--effects", default="", help="comma-separated hidden effects: " + ", ".join(vehicle.EFFECT_NAMES))
+    ap.add_argument("--duration", type=float, default=30.0, help="seconds of manoeuvre (plus still and run-up)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--speed", type=float, default=4.0, help="m/s")
+    ap.add_argument("--steer-amp", type=float, default=3.0, help="steer amplitude (rms for random steer), degrees")
+    ap.add_argument("--bandwidth", type=float, default=4.0, help="Hz, random steer / chirp")
+    ap.add_argument("--still", type=float, default=2.0, help="seconds standing still at the start")
+    ap.add_argument("--board", default="pico", choices=["pico", "esp32"])
+    ap.add_argument("--rate", type=int, default=500, help="firmware sample rate, Hz")
+    ap.add_argument("--batch", type=int, default=10, help="samples per frame")
+    ap.add_argument("--start-ticks", type=int, default=0, help="MCU ticks_us at start (near 2^30 tests the wrap)")
+    f = ap.add_argument_group("link faults (real-time mode)")
+    f.add_argument("--ber", type=float, default=0.0, help="bit error rate")
+    f.add_argument("--drop-rate", type=float, default=0.0, help="dropped bytes per byte")
+    f.add_argument("--insert-rate", type=float, default=0.0, help="inserted garbage per byte")
+    f.add_argument("--disconnect-at", type=float, help="unplug the port at this time [s]")
+    f.add_argument("--reconnect-after", type=float, default=2.0, help="replug after this many seconds")
+    f.add_argument("--link", help="keep a symlink to the current pty here (stable across replug)")
+    f.add_argument("--stall", action="append", default=[], metavar="AT:FOR",
+                   help="the host stops reading at AT s for FOR s: the MCU ring overruns (repeatable)")
+    f.add_argument("--fault-log", help=argparse.SUPPRESS)
+    o = ap.add_argument_group("faster than real time")
+    o.add_argument("--fast", action="store_true", help="record straight to -o instead of serving a port")
+    o.add_argument("-o", "--output", help="RUN.mcap for --fast")
+    o.add_argument("--csv", help="also write the CSV import contract here (--fast)")
+    o.add_argument("--truth", help="write the truth (parameters, effects) as JSON here (for tests)")
+    return ap
+
+
+def config_from_args(args) -> "SimConfig":
+    from hil_sim.run import SimConfig
+
+    effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
+    unknown = set(effects) - set(vehicle.EFFECT_NAMES)
+    if unknown:
+        raise ValueError(f"unknown effect(s) {', '.join(sorted(unknown))}; known: {', '.join(vehicle.EFFECT_NAMES)}")
+    if args.duration <= 0:
+        raise ValueError("--duration must be positive")
+    stalls = []
+    for s in args.stall:
+        try:
+            at, dur = (float(x) for x in s.split(":"))
+        except ValueError:
+            raise ValueError(f"--stall takes AT:FOR in seconds, e.g. 5:0.8 (got {s!r})") from None
+        stalls.append((at, dur))
+    plan = manoeuvres.Plan(name=args.manoeuvre, duration=args.duration, speed=args.speed,
+                           steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still)
+    return SimConfig(plan=plan, effects=effects, seed=args.seed, board=args.board, rate_hz=args.rate,
+                     batch=args.batch, start_ticks=args.start_ticks, stalls=tuple(stalls))
+
+
+def main(argv=None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        if args.fast:
+            if not args.output:
+                ap.error("--fast needs -o RUN.mcap")
+            from hil_sim.record import record
+
+            stats = record(cfg, args.output, csv_path=args.csv, truth_path=args.truth)
+            print(f"wrote {args.output}: {stats['samples']} samples", file=sys.stderr)
+            return 0
+        from hil_sim.faults import LinkFaults
+        from hil_sim.serve import ServeOptions, serve
+
+        opts = ServeOptions(disconnect_at=args.disconnect_at, reconnect_after=args.reconnect_after,
+                            link=args.link, fault_log=args.fault_log, truth=args.truth,
+                            faults=LinkFaults(ber=args.ber, drop_rate=args.drop_rate,
+                                              insert_rate=args.insert_rate, seed=args.seed))
+        return serve(cfg, opts)
+    except ValueError as e:
+        print(f"stid-sim: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
