@@ -49,6 +49,10 @@ def main(argv=None) -> int:
     except HostError as e:
         print(f"stid-log: error: {e}", file=sys.stderr)
         return e.exit_code
+    except OSError as e:  # the environment refused something (permissions, devices)
+        where = f": {e.filename}" if e.filename else ""
+        print(f"stid-log: error: {e.strerror or e}{where}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

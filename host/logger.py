@@ -75,8 +75,12 @@ def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial
 
 
 def _check_output(path: Path) -> None:
-    parent = path.resolve().parent
-    if not parent.exists():
+    try:
+        parent = path.absolute().parent
+        exists = parent.exists()
+    except OSError as e:
+        raise HostError(f"cannot reach the output directory of {path}: {e.strerror}") from None
+    if not exists:
         raise HostError(f"output directory {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise HostError(f"cannot write to {parent}: choose another -o path")
@@ -134,6 +138,9 @@ class Logger:
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
             return self._loop(log, rec, status)
+        except NoDataError:
+            self._close_after_error(log, rec)
+            raise
         except OSError as e:
             if e.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
                 raise DiskError(f"disk full while writing {self.path}: it holds everything up to the last "
@@ -188,14 +195,24 @@ class Logger:
         stats["file"] = str(self.path)
         return stats
 
+    def _close_after_error(self, log: McapLog, rec: Recorder) -> None:
+        """Leave a complete file behind (or none, if the port never sent a byte)."""
+        try:
+            rec.finish(time.time_ns())
+            log.close()
+        except OSError:
+            return
+        if rec.stats.bytes == 0:
+            self.path.unlink(missing_ok=True)
+
     def _no_data(self, rec: Recorder) -> None:
         if rec.stats.bytes == 0:
             msg = (f"no data from {self.opts.port} in {self.opts.idle_timeout:.0f} s: is the car powered and "
                    "the stid firmware running? ('stid flash' installs it)")
         else:
             msg = (f"{self.opts.port} sent {rec.stats.bytes} bytes but no valid stid frame in "
-                   f"{self.opts.idle_timeout:.0f} s: wrong baud rate (--baud), or not the stid firmware. "
-                   f"The bytes are kept in {self.path} (/stid/raw)")
+                   f"{self.opts.idle_timeout:.0f} s: wrong baud rate (--baud), or not the stid firmware? "
+                   f"The bytes are kept in {self.path} (topic /stid/raw)")
         raise NoDataError(msg)
 
     def _reconnect(self, rec: Recorder, log: McapLog, status: StatusLine, why: str) -> bool:

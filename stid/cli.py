@@ -30,7 +30,7 @@ def _cmd_flash(args) -> int:
 def _cmd_export(args) -> int:
     from stid.export import export_csv
 
-    return export_csv(args.run, args.csv)
+    return export_csv(args.run, args.csv, args.vehicle)
 
 
 def _cmd_repair(args) -> int:
@@ -62,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="write a logged run as CSV in SI units (the import contract)")
     p.add_argument("run", help="RUN.mcap written by stid-log")
     p.add_argument("--csv", required=True, help="output CSV path")
+    p.add_argument("--vehicle", help="vehicle TOML (steering and sensor calibration; default: datasheet values)")
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("repair", help="rewrite a truncated MCAP file (logger killed) into a complete one")
@@ -83,6 +84,10 @@ def main(argv=None) -> int:
     except (StidError, HostError) as e:
         print(f"stid {args.command}: error: {e}", file=sys.stderr)
         return e.exit_code
+    except OSError as e:  # the environment refused something (permissions, full disk)
+        where = f": {e.filename}" if e.filename else ""
+        print(f"stid {args.command}: error: {e.strerror or e}{where}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

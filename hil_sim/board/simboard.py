@@ -158,6 +158,11 @@ class Board:
             t = th
         if t >= _FAR:
             t = self.now + 1000
+        end = self.stim.duration_us
+        if t >= end:  # the stimulus covers [0, end): nothing happens at or after it
+            self.now = end
+            self.finished = True
+            return
         self.advance_to(t)
 
     # -- analog ---------------------------------------------------------------

@@ -1,0 +1,193 @@
+"""Load runs from stid-log MCAP files (complete or cut short) or CSV files in the
+import contract (DESIGN.md), and check them for the mistakes users make."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from host.errors import HostError
+from host.mcap_read import read_log
+from host import units
+from stid import calibration
+from stid.errors import InputError
+from stid.run import Run
+from stid.vehicle_file import Vehicle, default_vehicle
+
+REQUIRED = ("t", "steer", "ay", "r", "vx")
+OPTIONAL = ("ax", "beta", "delta_cmd", "w_fl", "w_fr", "w_rl", "w_rr")
+MAX_FILLED_GAP_S = 0.1  # lost frames up to this long are interpolated; longer gaps split the run
+MIN_SAMPLES = 20
+
+# Beyond these a value is not physical for a scale car in SI units: most likely degrees.
+PLAUSIBLE = {"steer": (1.0, "rad (road-wheel angle; 1 rad is 57 deg)"),
+             "r": (15.0, "rad/s"), "ay": (60.0, "m/s^2"), "vx": (60.0, "m/s"), "beta": (1.0, "rad")}
+
+
+def load_runs(paths, vehicle: Vehicle | None = None) -> list[Run]:
+    runs = []
+    for p in paths:
+        runs.extend(load_file(p, vehicle))
+    return runs
+
+
+def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path} does not exist")
+    if path.is_dir():
+        raise InputError(f"{path} is a directory; give the run files (RUN.mcap or RUN.csv)")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path} is empty")
+    with open(path, "rb") as f:
+        head = f.read(8)
+    if head == b"\x89MCAP0\r\n":
+        return load_mcap(path, vehicle)
+    return [load_csv(path)]
+
+
+# -- CSV ------------------------------------------------------------------------
+
+def load_csv(path) -> Run:
+    path = Path(path)
+    try:
+        df = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise InputError(f"{path} is neither an MCAP file nor a readable CSV ({str(e).strip()})") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    missing = [c for c in REQUIRED if c not in df.columns]
+    if missing:
+        raise InputError(f"{path} lacks the column(s) {', '.join(missing)}; the CSV contract needs "
+                         f"{', '.join(REQUIRED)} (SI units: s, rad, m/s^2, rad/s, m/s)")
+    if len(df) < MIN_SAMPLES:
+        raise InputError(f"{path} has only {len(df)} rows; a run needs at least {MIN_SAMPLES} samples")
+    cols = {}
+    for c in list(REQUIRED) + [c for c in OPTIONAL if c in df.columns]:
+        x = pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=float)
+        bad = ~np.isfinite(x)
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{path}: column '{c}' has {int(bad.sum())} missing or non-numeric value(s) "
+                             f"(first at data row {first + 1}); fill or drop those rows")
+        cols[c] = x
+    _check_units(path, cols)
+    t = cols.pop("t")
+    warnings = []
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        raise InputError(f"{path}: time 't' is not increasing (row {int(np.flatnonzero(dt <= 0)[0]) + 2}); "
+                         "sort the rows or remove duplicates")
+    med = float(np.median(dt))
+    if np.max(np.abs(dt - med)) > 0.05 * med:
+        tu = t[0] + med * np.arange(int(round((t[-1] - t[0]) / med)) + 1)
+        for k in cols:
+            cols[k] = np.interp(tu, t, cols[k])
+        warnings.append(f"time was irregular (steps {dt.min() * 1e3:.2f}-{dt.max() * 1e3:.2f} ms): "
+                        f"resampled to {1 / med:.1f} Hz by linear interpolation")
+        t = tu
+    extra = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(float) for c in df.columns
+             if c not in REQUIRED and c not in OPTIONAL}
+    if warnings:
+        extra = {}
+    run = Run(name=path.name, t=t - t[0], steer=cols["steer"], ay=cols["ay"], r=cols["r"], vx=cols["vx"],
+              ax=cols.get("ax"), beta=cols.get("beta"),
+              extra={**{k: v for k, v in cols.items() if k in OPTIONAL and k not in ("ax", "beta")}, **extra},
+              meta={"source": str(path), "format": "csv"})
+    for w in warnings:
+        run.warn(w)
+    return run
+
+
+def _check_units(path, cols):
+    for name, (limit, unit) in PLAUSIBLE.items():
+        if name in cols:
+            peak = float(np.max(np.abs(cols[name])))
+            if peak > limit:
+                hint = " — that looks like degrees; convert to radians" if name in ("steer", "r", "beta") else ""
+                raise InputError(f"{path}: '{name}' reaches {peak:.3g}, implausible in {unit}{hint}")
+
+
+# -- MCAP -----------------------------------------------------------------------
+
+def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
+    vehicle = vehicle or default_vehicle()
+    try:
+        log = read_log(path)
+    except HostError as e:
+        raise InputError(str(e)) from None
+    s = log.samples
+    if len(s) < MIN_SAMPLES:
+        raise InputError(f"{path} holds {len(s)} samples: too few to use (was the logger connected to the car?)")
+    if not log.hello:
+        raise InputError(f"{path} has samples but no HELLO frame, so the ADC scale is unknown; "
+                         "log for at least 5 s (the firmware repeats HELLO every 5 s)")
+    runs = []
+    for k, (a, b) in enumerate(_pieces(s)):
+        piece = s[a:b]
+        if len(piece) < MIN_SAMPLES:
+            continue
+        name = Path(path).name if k == 0 else f"{Path(path).name}#{k + 1}"
+        runs.append(_convert(piece, log, vehicle, name, str(path)))
+    if log.truncated:
+        for r in runs:
+            r.warn(f"{Path(path).name} was cut short (logger killed?): read up to its last complete chunk; "
+                   f"'stid repair' makes it a complete file")
+    return runs
+
+
+def _pieces(s):
+    """Split where the firmware restarted or the stream stopped for longer than
+    MAX_FILLED_GAP_S (an unplug)."""
+    t = s["t_mcu_us"]
+    if len(t) < 2:
+        return [(0, len(t))]
+    brk = (np.diff(s["segment"]) != 0) | (np.diff(t) > MAX_FILLED_GAP_S * 1e6) | (np.diff(t) <= 0)
+    cuts = np.concatenate([[0], np.flatnonzero(brk) + 1, [len(t)]])
+    return list(zip(cuts[:-1], cuts[1:]))
+
+
+def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
+    hello = log.hello
+    t_us = s["t_mcu_us"].astype(np.int64)
+    step = int(np.median(np.diff(t_us)))
+    tu = np.arange(t_us[0], t_us[-1] + 1, step)
+    filled = len(tu) - len(t_us)
+    ax, ay, az = calibration.accelerations(s, hello, vehicle)
+    r = calibration.yaw_rate(s, hello, vehicle)
+    steer = calibration.steer_angle(s["steer_us"], vehicle)
+    ppr = int(hello.get("wheel", {}).get("pulses_per_rev", vehicle.pulses_per_rev))
+    vx = units.wheel_speed(t_us, s["t_us"], s["wheel_count"], s["wheel_t_us"], ppr, vehicle.wheel_radius,
+                           int(hello.get("mod", 1 << 30)))
+    no_pulse = np.isnan(steer)
+    steer = np.where(no_pulse, 0.0, steer)
+    sig = {"steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax}
+    if not np.all(np.isnan(az)):
+        sig["az"] = az
+    if filled:
+        sig = {k: np.interp(tu, t_us, v) for k, v in sig.items()}
+    t = (tu - tu[0]) * 1e-6
+    fs = 1e6 / step
+    run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig["ax"],
+              extra={k: v for k, v in sig.items() if k == "az"},
+              meta={"source": source, "format": "mcap", "hello": hello, "fs": fs})
+    if filled:
+        run.warn(f"{filled} samples missing (lost frames) were interpolated")
+    if no_pulse.mean() > 0.01:
+        run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): steer taken as 0 there")
+    clip = units.clipped(s["ay"], hello) | units.clipped(s["ax"], hello)
+    if clip.any():
+        run.warn(f"{int(clip.sum())} accelerometer samples at the ADC limit (clipped)")
+        run.extra["clipped"] = clip.astype(float) if not filled else np.interp(tu, t_us, clip.astype(float))
+    bias = calibration.gyro_bias_from_still(run.r, run.vx, fs)
+    if bias is not None:
+        run.r = run.r - bias
+        run.meta["gyro_bias"] = bias
+    else:
+        run.warn("the run never stands still: gyro bias not re-estimated (start runs with ~2 s standing still)")
+    run.meta["calibration"] = {"steer_center_us": vehicle.steer_center_us,
+                               "steer_us_per_rad": vehicle.steer_us_per_rad,
+                               "wheel_radius": vehicle.wheel_radius, "sensors": vehicle.sensors,
+                               "gyro_bias_rad_s": bias}
+    return run

@@ -1,0 +1,65 @@
+"""A run: uniformly sampled signals in SI units, ISO 8855 axes, ready to fit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Run:
+    """One stretch of driving.
+
+    Attributes
+    ----------
+    name : str
+        Where it came from (file, and piece if the file was split).
+    t : ndarray
+        Time [s], uniform.
+    steer : ndarray
+        Front road-wheel angle [rad], positive left.
+    ay, r, vx : ndarray
+        Lateral acceleration [m/s^2], yaw rate [rad/s], forward speed [m/s].
+    ax, beta : ndarray or None
+        Longitudinal acceleration [m/s^2] and body slip angle [rad] when measured.
+    extra : dict
+        Any other columns (kept, ignored by the models).
+    meta : dict
+        Source, calibration used, warnings raised while loading.
+    """
+
+    name: str
+    t: np.ndarray
+    steer: np.ndarray
+    ay: np.ndarray
+    r: np.ndarray
+    vx: np.ndarray
+    ax: np.ndarray | None = None
+    beta: np.ndarray | None = None
+    extra: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def fs(self) -> float:
+        return 1.0 / float(np.median(np.diff(self.t)))
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.fs
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def slice(self, i0: int, i1: int, name: str | None = None) -> "Run":
+        cut = lambda x: None if x is None else x[i0:i1]  # noqa: E731
+        return Run(name or self.name, self.t[i0:i1], self.steer[i0:i1], self.ay[i0:i1], self.r[i0:i1],
+                   self.vx[i0:i1], cut(self.ax), cut(self.beta), {k: v[i0:i1] for k, v in self.extra.items()},
+                   dict(self.meta))
+
+    def warn(self, text: str) -> None:
+        self.meta.setdefault("warnings", []).append(text)

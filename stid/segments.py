@@ -1,0 +1,63 @@
+"""Find the parts of a run that serve each fit: standing still, constant speed,
+steady-state cornering; trim start-up transients."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+
+def _runs_of(mask: np.ndarray, min_len: int):
+    """(start, stop) index pairs of True stretches at least ``min_len`` long."""
+    m = np.concatenate([[False], mask.astype(bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(np.int8)))
+    pairs = edges.reshape(-1, 2)
+    return [(int(a), int(b)) for a, b in pairs if b - a >= min_len]
+
+
+def still_mask(vx: np.ndarray, fs: float, v_still: float = 0.05, min_s: float = 0.5) -> np.ndarray:
+    """True where the car stands still (no wheel motion) for at least ``min_s``."""
+    mask = np.abs(vx) < v_still
+    out = np.zeros(len(vx), bool)
+    # the edges of a still stretch still move (rolling to a stop): keep its core
+    trim = int(0.1 * fs)
+    for a, b in _runs_of(mask, int(min_s * fs)):
+        out[a + trim:max(a + trim, b - trim)] = True
+    return out
+
+
+def constant_speed(vx: np.ndarray, fs: float, tol: float = 0.1, min_s: float = 3.0, v_min: float = 0.5):
+    """(start, stop) stretches where speed stays within ``tol`` (relative) of its 1 s mean."""
+    win = max(3, int(fs))
+    mean = uniform_filter1d(vx, win)
+    ok = (vx > v_min) & (np.abs(vx - mean) < tol * np.maximum(mean, v_min)) & (mean > v_min)
+    return _runs_of(ok, int(min_s * fs))
+
+
+def steady_state(steer, ay, r, vx, fs: float, window_s: float = 0.5, rate_tol: float = 0.15):
+    """Boolean mask of quasi-steady cornering: yaw rate and speed change slowly
+    compared with their size (|dr/dt| window_s < rate_tol |r|)."""
+    win = max(3, int(window_s * fs))
+    r_s = uniform_filter1d(r, win)
+    dr = np.gradient(r_s) * fs
+    v_s = uniform_filter1d(vx, win)
+    dv = np.gradient(v_s) * fs
+    st = uniform_filter1d(steer, win)
+    dst = np.gradient(st) * fs
+    ok = (np.abs(dr) * window_s < rate_tol * np.maximum(np.abs(r_s), 0.05))
+    ok &= np.abs(dv) * window_s < 0.1 * np.maximum(v_s, 0.5)
+    ok &= np.abs(dst) * window_s < rate_tol * np.maximum(np.abs(st), 0.005)
+    ok &= v_s > 0.5
+    return ok
+
+
+def moving_start(vx: np.ndarray, fs: float, v_frac: float = 0.8, settle_s: float = 1.0) -> int:
+    """Index after which the car has reached most of its running speed and settled
+    (start-up transient trimmed)."""
+    if len(vx) == 0:
+        return 0
+    v_run = np.percentile(vx, 75)
+    if v_run <= 0.3:
+        return 0
+    above = np.flatnonzero(vx > v_frac * v_run)
+    return int(min(len(vx), (above[0] if len(above) else 0) + settle_s * fs))
