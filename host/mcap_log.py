@@ -5,8 +5,8 @@ Channels (all messages carry the host receive time as log_time, ns since epoch):
 | topic | encoding | content |
 |---|---|---|
 | `/stid/raw` | `stid.raw` (no schema) | every byte read from the port, as read: a decoder bug can be fixed later |
-| `/stid/frames` | `stid.frame.v1` (no schema) | each accepted frame without COBS and CRC; the fast path for loading |
-| `/stid/samples` | `json` + jsonschema | one message per SAMPLES frame: column arrays of raw counts, unwrapped MCU time and host time (in Foxglove plot e.g. `/stid/samples.ay[0]`) |
+| `/stid/frames` | `stid.frames.v1` (no schema) | the accepted frames of one port read, each as u16 length + frame without COBS and CRC; the fast path for loading |
+| `/stid/samples` | `json` + jsonschema | the samples of one port read as column arrays: raw counts, index, unwrapped MCU time and host time (in Foxglove plot e.g. `/stid/samples.ay[0]`) |
 | `/stid/status` | `json` + jsonschema | the firmware's STATUS frames |
 | `/stid/hello` | `json` + jsonschema | the firmware's HELLO frames |
 | `/stid/events` | `json` + jsonschema | connect, disconnect, reconnect, firmware restart |
@@ -32,13 +32,13 @@ from mcap.writer import CompressionType, Writer
 SCHEMAS = {
     "stid.Samples": {
         "type": "object",
-        "description": "The samples of one SAMPLES frame as column arrays: raw ADC counts "
-                       "(65535 = not sampled; convert with the HELLO content), unwrapped MCU time [us] "
-                       "and the clock model's host time [ns].",
+        "description": "The samples of one port read as column arrays: raw ADC counts "
+                       "(65535 = not sampled; convert with the HELLO content), sample index, unwrapped "
+                       "MCU time [us] and the clock model's host time [ns].",
         "properties": {
-            "boot": {"type": "string"}, "index": {"type": "integer"}, "n": {"type": "integer"},
+            "boot": {"type": "string"}, "n": {"type": "integer"},
             **{k: {"type": "array", "items": {"type": "integer"}}
-               for k in ("t_mcu_us", "t_host_ns", "ax", "ay", "az", "yaw", "steer_us", "wheel_count",
+               for k in ("index", "t_mcu_us", "t_host_ns", "ax", "ay", "az", "yaw", "steer_us", "wheel_count",
                          "wheel_t_us", "vbat")},
         },
     },
@@ -56,7 +56,7 @@ TOPICS = {
 }
 RAW_TOPIC = "/stid/raw"
 FRAMES_TOPIC = "/stid/frames"
-FRAME_ENCODING = "stid.frame.v1"
+FRAME_ENCODING = "stid.frames.v1"
 PROFILE = "stid"
 
 
@@ -89,8 +89,9 @@ class McapLog:
     def raw(self, data: bytes, log_ns: int) -> None:
         self._add("raw", data, log_ns)
 
-    def frame(self, payload: bytes, log_ns: int) -> None:
-        self._add("frames", payload, log_ns)
+    def frames(self, payloads: list[bytes], log_ns: int) -> None:
+        # one message per port read: u16 length + payload, repeated (stid.frames.v1)
+        self._add("frames", b"".join(len(pl).to_bytes(2, "little") + pl for pl in payloads), log_ns)
 
     def json(self, key: str, doc: dict, log_ns: int) -> None:
         self._add(key, json.dumps(doc, separators=(",", ":")).encode(), log_ns)

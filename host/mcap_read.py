@@ -96,8 +96,9 @@ def read_log(path) -> LogData:
             if isinstance(rec, Message):
                 topic = topics.get(rec.channel_id)
                 if topic == FRAMES_TOPIC:
-                    payloads.append(rec.data)
-                    frame_ns.append(rec.log_time)
+                    for pl in split_frames(rec.data):
+                        payloads.append(pl)
+                        frame_ns.append(rec.log_time)
                 elif topic in _JSON_TOPICS:
                     getattr(data, _JSON_TOPICS[topic]).append((rec.log_time, json.loads(rec.data)))
                 elif topic == "/stid/stats":
@@ -111,6 +112,16 @@ def read_log(path) -> LogData:
     data.frames = len(payloads)
     data.samples = _decode_samples(payloads, np.asarray(frame_ns, dtype=np.int64))
     return data
+
+
+def split_frames(blob: bytes) -> list[bytes]:
+    """The frames of one /stid/frames message (stid.frames.v1: u16 length + payload, repeated)."""
+    out, pos, n = [], 0, len(blob)
+    while pos + 2 <= n:
+        k = blob[pos] | blob[pos + 1] << 8
+        out.append(blob[pos + 2:pos + 2 + k])
+        pos += 2 + k
+    return out
 
 
 _JSON_TOPICS = {"/stid/hello": "hellos", "/stid/status": "status", "/stid/events": "events"}

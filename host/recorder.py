@@ -56,11 +56,30 @@ class Recorder:
         return self.decoder.stats
 
     def feed(self, data: bytes, host_ns: int) -> None:
+        """Everything one read of the port delivered, received at ``host_ns``.
+
+        Work is done per read, not per frame: consecutive SAMPLES frames are
+        decoded and unwrapped together, and the frames and samples channels get
+        one message per read. That is what keeps up with USB line rate.
+        """
         if not data:
             return
         self.log.raw(data, host_ns)
-        for fr in self.decoder.feed(data):
-            self._frame(fr, host_ns)
+        frames = self.decoder.feed(data)
+        if not frames:
+            return
+        self.log.frames([f.payload for f in frames], host_ns)
+        group = []
+        for fr in frames:
+            if fr.type == p.SAMPLES:
+                group.append(fr)
+                continue
+            if group:
+                self._samples(group, host_ns)
+                group = []
+            self._other(fr, host_ns)
+        if group:
+            self._samples(group, host_ns)
 
     def _new_boot(self, boot_id: str, host_ns: int, reason: str) -> None:
         if self.boot.id == UNKNOWN_BOOT and reason == "hello":
@@ -71,9 +90,7 @@ class Recorder:
         self.boots.append(self.boot)
         self.event("boot", host_ns, f"firmware boot {boot_id} ({reason})")
 
-    def _frame(self, fr, host_ns: int) -> None:
-        self.log.frame(fr.payload, host_ns)
-        host_us = host_ns / 1000.0
+    def _other(self, fr, host_ns: int) -> None:
         if fr.type == p.HELLO:
             doc = fr.hello()
             bid = str(doc.get("boot_id", UNKNOWN_BOOT))
@@ -81,7 +98,7 @@ class Recorder:
                 self._new_boot(bid, host_ns, "hello")
             if self.boot.hello is None:
                 self.boot.hello = doc
-                self.log.metadata("stid.hello", {**{k: v for k, v in doc.items()}, "boot_id": bid})
+                self.log.metadata("stid.hello", {**doc, "boot_id": bid})
             self.hello = doc
             self.log.json("hello", doc, host_ns)
         elif fr.type == p.STATUS:
@@ -89,28 +106,35 @@ class Recorder:
             self.last_status = st
             self.boot.overruns = st["overruns"]  # the firmware's own count since boot
             self.log.json("status", {**st, "boot": self.boot.id, "seq": fr.seq}, host_ns)
-        elif fr.type == p.SAMPLES:
-            self._samples(fr, host_ns, host_us)
 
-    def _samples(self, fr, host_ns: int, host_us: float) -> None:
-        index = fr.samples_index()
-        arr = np.frombuffer(fr.samples_bytes(), dtype=p.SAMPLE_DTYPE)
+    def _samples(self, frames, host_ns: int) -> None:
+        first = [f.samples_index() for f in frames]
+        counts = [f.samples_count() for f in frames]
         b = self.boot
-        if b.last_index is not None:
-            gap = (index - b.last_index - 1) % p.MOD
-            if gap > p.MOD // 2:  # index went back: the firmware restarted without a HELLO yet
+        # split the group where the sample index runs backwards (a restart without HELLO yet)
+        prev = b.last_index
+        for k, (i0, n) in enumerate(zip(first, counts)):
+            if prev is not None and (i0 - prev - 1) % p.MOD > p.MOD // 2:
+                if k:
+                    self._samples(frames[:k], host_ns)
                 self._new_boot(f"{UNKNOWN_BOOT}{len(self.boots)}", host_ns, "sample index restarted")
-                b = self.boot
-            else:
-                self.missing_samples += gap
+                self._samples(frames[k:], host_ns)
+                return
+            if prev is not None:
+                self.missing_samples += (i0 - prev - 1) % p.MOD
+            prev = (i0 + n - 1) % p.MOD
+        arr = np.frombuffer(b"".join(f.samples_bytes() for f in frames), dtype=p.SAMPLE_DTYPE)
+        host_us = host_ns / 1000.0
         t_mcu = b.ticks.unwrap_array(arr["t_us"], host_us)
         # the last sample was taken before the frame was sent: its host time is an upper bound
         b.clock.add(float(t_mcu[-1]), host_us)
-        b.last_index = (index + len(arr) - 1) % p.MOD
+        b.last_index = prev
         self.samples += len(arr)
         fit = b.clock_fit()
         log_ns = np.minimum((b.clock.to_host_us(t_mcu, fit) * 1000).astype(np.int64), host_ns)
-        doc = {"boot": b.id, "index": index, "n": len(arr), "t_mcu_us": t_mcu.tolist(),
+        index = (np.repeat(np.asarray(first, dtype=np.int64), counts)
+                 + np.arange(len(arr)) - np.repeat(np.cumsum([0] + counts[:-1]), counts)) % p.MOD
+        doc = {"boot": b.id, "n": len(arr), "index": index.tolist(), "t_mcu_us": t_mcu.tolist(),
                "t_host_ns": log_ns.tolist()}
         for name in p.SAMPLE_FIELDS[1:]:
             doc[name] = arr[name].tolist()

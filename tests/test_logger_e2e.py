@@ -56,7 +56,7 @@ def clean_frames(fault_log):
 
 
 def logged_frames(path):
-    from host.mcap_read import iter_records
+    from host.mcap_read import iter_records, split_frames
     from mcap.records import Channel, Message
 
     topics, out = {}, []
@@ -67,7 +67,7 @@ def logged_frames(path):
             if isinstance(rec, Channel):
                 topics[rec.id] = rec.topic
             elif isinstance(rec, Message) and topics.get(rec.channel_id) == FRAMES_TOPIC:
-                out.append(rec.data)
+                out.extend(split_frames(rec.data))
     except StopIteration:
         pass
     return out

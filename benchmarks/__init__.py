@@ -1,0 +1,1 @@
+"""Benchmarks: `make bench` (full) or `python -m benchmarks.run --quick` (CI smoke)."""
