@@ -276,3 +276,30 @@ def test_file_size_limit_mid_run(tmp_path):
     assert "disk full" in err and "stid repair" in err and "Traceback" not in err
     log = read_log(out)
     assert log.truncated and len(log.samples) > 100
+
+
+def test_status_line_on_a_terminal_and_quiet_when_piped(tmp_path):
+    sim = Sim("--duration", 3, "--still", 0.5, "--seed", 2)
+    term_master, term_slave = os.openpty()  # stid-log's stderr is a terminal here
+    lg = subprocess.Popen([tool("stid-log"), sim.port, "-o", str(tmp_path / "a.mcap"), "--duration", "30",
+                           "--reconnect-timeout", "0.5"], stderr=term_slave, stdout=subprocess.DEVNULL)
+    os.close(term_slave)
+    seen = b""
+    while True:
+        try:
+            chunk = os.read(term_master, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        seen += chunk
+    lg.wait(timeout=30)
+    sim.proc.wait(timeout=30)
+    os.close(term_master)
+    assert b"\r" in seen and b"samples/s" in seen and b"m/s" in seen
+    sim2 = Sim("--duration", 2, "--still", 0.5, "--seed", 2)
+    piped = subprocess.run([tool("stid-log"), sim2.port, "-o", str(tmp_path / "b.mcap"), "--duration", "30",
+                            "--reconnect-timeout", "0.5"], capture_output=True, text=True, timeout=60)
+    sim2.proc.wait(timeout=30)
+    assert "\r" not in piped.stderr
+    assert len(piped.stderr.strip().splitlines()) <= 2  # the summary, and the port-gone note
