@@ -17,6 +17,8 @@ accel_offset = [0.0, 0.0, 0.0]    # m/s^2, subtracted after datasheet conversion
 gyro_zero_v = 1.65                # V at zero yaw rate
 mount_roll = 0.0                  # rad, accelerometer mounting rotation about x
 mount_pitch = 0.0                 # rad, about y
+accel_bandwidth_hz = 50.0         # ADXL335 output filter (5 uF / C; 0.1 uF -> 50 Hz); 0 = none
+gyro_bandwidth_hz = 88.0          # LISY300AL internal low-pass
 
 [params]              # initial values / bounds of model parameters, e.g.
 Cf = { init = 400.0, min = 20.0, max = 5000.0 }

@@ -1,0 +1,10 @@
+"""The catalogue of physical effects. Importing this package registers them."""
+
+from stid.effects import (  # noqa: F401
+    accel_offset,
+    actuator_lag,
+    body_roll,
+    sensor_bias,
+    tyre_relaxation,
+    tyre_saturation,
+)

@@ -1,0 +1,1 @@
+"""Fitting: steady state, frequency domain, time domain, two-step."""

@@ -1,0 +1,26 @@
+"""Warnings where the data cannot identify a parameter. A number without its
+limits is not a result: these say when to distrust one, and what to drive."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def add_identifiability_warnings(result, model, stretches) -> None:
+    names = [e.name for e in model.effects]
+    speeds = np.array([s.vx for s in stretches]) if stretches else np.array([])
+    one_speed = len(speeds) == 0 or speeds.max() / max(speeds.min(), 1e-9) < 1.3
+    if "actuator_lag" in names and "tyre_relaxation" in names and one_speed:
+        result.warn("servo lag and tyre relaxation cannot be told apart from one speed: relaxation lag "
+                    "scales with 1/speed, servo lag does not. Add the same random steer at a second speed")
+    rel = result.stderr / np.maximum(np.abs(result.values), 1e-300)
+    for n, r in zip(result.names, rel):
+        if r > 0.3 and not model.param(n).zero == 0.0:
+            result.warn(f"{n} is poorly identified (std. error {100 * r:.0f}% of its value): "
+                        "more excitation or a longer run is needed")
+    c = result.corr
+    for i in range(len(result.names)):
+        for j in range(i + 1, len(result.names)):
+            if abs(c[i, j]) > 0.98:
+                result.warn(f"{result.names[i]} and {result.names[j]} are almost fully correlated "
+                            f"({c[i, j]:+.3f}): the data determine a combination of them, not each one")

@@ -1,0 +1,90 @@
+"""One entry point for every method: ``fit(runs, vehicle, model, method)``.
+
+Methods: ``steady`` (steady-state lines), ``freq`` (frequency responses, WLS),
+``freq-study`` (study 1's coherence-weighted cost), ``time`` (output error),
+``two-step`` (Cf, Cr from steady state, the rest from dynamics, as study 1
+recommends; with no body-slip measurement the understeer gradient from steady
+state constrains Cf and Cr instead), ``auto`` (two-step when the runs hold both
+steady-state cornering and a constant-speed stretch, else what the data allow).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stid.errors import InputError
+from stid.fit import dataset
+from stid.fit.freq_fit import fit_freq
+from stid.fit.solver import ParamSpace
+from stid.fit.steady_fit import fit_steady
+from stid.fit.time_fit import fit_time
+from stid.models.model import Model
+
+METHODS = ("auto", "steady", "freq", "freq-study", "time", "two-step")
+
+
+def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynamic: str = "time"):
+    if method not in METHODS:
+        raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    model = Model(model_name, vehicle)
+    if method == "auto":
+        method = _choose(runs)
+    if method == "steady":
+        return fit_steady(model, dataset.steady_points(runs))
+    if method in ("freq", "freq-study"):
+        return fit_freq(model, dataset.dynamic_stretches(runs), weighting="wls" if method == "freq" else "study",
+                        method_name=method)
+    if method == "time":
+        return fit_time(model, dataset.dynamic_stretches(runs))
+    return two_step(model, runs, dynamic)
+
+
+def _choose(runs) -> str:
+    try:
+        dataset.dynamic_stretches(runs)
+        has_dyn = True
+    except InputError:
+        has_dyn = False
+    pts = dataset.steady_points(runs)
+    has_ss = len(pts.ay) >= 5 and np.ptp(pts.ay) >= 1.0 if len(pts.ay) else False
+    if has_dyn and has_ss:
+        return "two-step"
+    if has_dyn:
+        return "time"
+    if has_ss:
+        return "steady"
+    raise InputError("the runs hold neither a constant-speed stretch (for the dynamics) nor steady-state "
+                     "cornering: drive random steer at constant speed, or circles with a slow speed sweep")
+
+
+def two_step(model: Model, runs, dynamic: str = "time"):
+    """Study 1's recommendation: stiffness from steady state first, the rest from dynamics."""
+    ss = fit_steady(model, dataset.steady_points(runs))
+    stretches = dataset.dynamic_stretches(runs)
+    v = model.vehicle
+    if "Cf" in ss.names:
+        fixed = {"Cf": ss.value("Cf"), "Cr": ss.value("Cr")}
+        space = ParamSpace(model, [n for n in model.param_names if n not in fixed], fixed)
+    else:
+        eta = ss.value("eta")
+        # Cf follows from Cr and the understeer gradient: b/Cf = eta L/m + a/Cr
+        def derived(p):
+            return {"Cf": v.b / max(eta * v.L / v.mass + v.a / p["Cr"], 1e-12)}
+        space = ParamSpace(model, [n for n in model.param_names if n != "Cf"], {}, derived=derived)
+    fitter = fit_time if dynamic == "time" else fit_freq
+    res = fitter(model, stretches, space=space, method_name=f"two-step (steady + {dynamic})")
+    if "Cf" in ss.names:
+        for i, n in enumerate(ss.names):
+            se = ss.stderr[i]
+            res.fixed[n] = (ss.values[i], "N/rad", f"from steady state (std. error {se:.4g})")
+    else:
+        p = res.all_params()
+        p_hat = dict(zip(res.names, res.values))
+        p_hat.update(space.derived(p_hat))
+        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr")
+        res.extra["eta"] = ss.value("eta")
+    res.extra["steady"] = ss
+    for w in ss.warnings:
+        if "Iz is not identifiable" not in w and "body slip" not in w:
+            res.warn(w)
+    return res

@@ -1,0 +1,81 @@
+"""Frequency-domain fits of the responses ay/delta and r/delta.
+
+Two costs:
+
+- ``wls`` (default): weighted least squares on real and imaginary parts, each
+  point weighted by the inverse variance of the H1 estimate from its coherence
+  and the number of averages. Its covariance is an honest parameter
+  uncertainty.
+- ``study``: the cost of study (1): squared complex error weighted by coherence
+  and normalised per output by the mean measured magnitude. Kept to reproduce the
+  study; its scaling has no statistical meaning, so its covariance is only the
+  white-residual approximation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stid.fit.dataset import Stretch, check_excitation
+from stid.fit.frf import FRF, estimate_frf
+from stid.fit.solver import ParamSpace, covariance_white, least_squares, to_physical
+from stid.fit.result import Prediction
+from stid.fit.time_fit import make_result, _keep
+from stid.fit import checks
+
+
+def frf_residual(model, p: dict, frfs: list[FRF], weighting: str) -> np.ndarray:
+    out = []
+    for fr in frfs:
+        Hm = model.freqresp(p, fr.f, fr.vx)
+        e = Hm - fr.H
+        if weighting == "wls":
+            w = 1.0 / np.sqrt(fr.variance())
+        else:
+            w = np.sqrt(np.clip(fr.coh, 0, 1) / np.mean(np.abs(fr.H), axis=1, keepdims=True))
+        e = e * w
+        out.append(np.concatenate([e.real.ravel(), e.imag.ravel()]))
+    return np.concatenate(out)
+
+
+def fit_freq(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
+             weighting: str = "wls", space: ParamSpace | None = None, method_name: str | None = None,
+             frfs: list[FRF] | None = None):
+    fixed = dict(fixed or {})
+    warnings = check_excitation(stretches)
+    frfs = frfs or [estimate_frf(s) for s in stretches]
+    for fr in frfs:
+        if len(fr.f) < 5:
+            warnings.append(f"{fr.name}: the steer excites only {len(fr.f)} frequency lines; "
+                            "drive random steer with a wider bandwidth")
+        elif np.mean(fr.coh) < 0.5:
+            warnings.append(f"{fr.name}: low coherence (mean {np.mean(fr.coh):.2f}): noisy or nonlinear response")
+    if space is None:
+        space = ParamSpace(model, [n for n in model.param_names if n not in fixed], fixed)
+    p0 = model.defaults()
+    p0.update(init or {})
+    p0.update(fixed)
+    starts = [p0]
+    if model.effects:
+        for f in (0.3, 3.0):
+            q = dict(p0)
+            for e in model.effects:
+                for par in e.params:
+                    if par.log and par.name in space.free:
+                        q[par.name] = p0[par.name] * f
+            starts.append(q)
+    res = least_squares(lambda p: frf_residual(model, p, frfs, weighting), space, starts)
+    p_hat = space.to_p(res.x)
+    cov = to_physical(covariance_white(res.jac, res.fun, len(space.free)), space, res.x)
+    preds = [Prediction(s.name, s.t, s.steer, s.y, model.simulate(p_hat, s.steer, s.dt, s.vx), s.vx,
+                        _keep(s, 0.5)) for s in stretches]
+    result = make_result(model, method_name or f"freq ({weighting})", space, p_hat, cov, preds)
+    result.extra["frfs"] = frfs
+    dof = max(len(res.fun) - len(space.free), 1)
+    result.extra["chi2_red"] = float(res.fun @ res.fun / dof)
+    for w in warnings:
+        result.warn(w)
+    for n in space.at_bound(res.x):
+        result.warn(f"{n} stopped at its bound ({p_hat[n]:.4g} {model.param(n).unit})")
+    checks.add_identifiability_warnings(result, model, stretches)
+    return result

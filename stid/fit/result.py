@@ -1,0 +1,146 @@
+"""The result of a fit: values with standard errors, 95% intervals and the
+correlation matrix, fit percent per output, information criteria and warnings.
+The numbers live here; ``table()`` and ``to_json()`` only present them."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+OUTPUT_UNITS = {"ay": "m/s^2", "r": "rad/s"}
+
+
+def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
+    """MATLAB-style fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    den = np.linalg.norm(y - np.mean(y))
+    if den == 0:
+        return float("nan")
+    return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den))
+
+
+@dataclass
+class Prediction:
+    """Measured and modelled outputs on one stretch (kept for compare, diagnose, report)."""
+
+    name: str
+    t: np.ndarray
+    steer: np.ndarray
+    y: np.ndarray  # (n, 2): ay, r
+    yhat: np.ndarray
+    vx: float
+    keep: np.ndarray  # samples used in the cost (start-up transient excluded)
+
+
+@dataclass
+class FitResult:
+    model: str
+    method: str
+    names: list
+    values: np.ndarray
+    cov: np.ndarray
+    units: dict
+    owners: dict = field(default_factory=dict)  # parameter -> component ("bicycle" or effect)
+    fixed: dict = field(default_factory=dict)  # name -> (value, unit, why)
+    fit: dict = field(default_factory=dict)  # output -> percent
+    n: int = 0  # residuals in the likelihood
+    loglik: float = float("nan")
+    warnings: list = field(default_factory=list)
+    predictions: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
+
+    # -- numbers ------------------------------------------------------------
+    @property
+    def stderr(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+
+    @property
+    def ci95(self) -> np.ndarray:
+        dof = max(self.n - len(self.values), 1)
+        q = stats.t.ppf(0.975, dof)
+        return np.column_stack([self.values - q * self.stderr, self.values + q * self.stderr])
+
+    @property
+    def corr(self) -> np.ndarray:
+        s = self.stderr
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = self.cov / np.outer(s, s)
+        return np.where(np.isfinite(c), c, 0.0)
+
+    @property
+    def k(self) -> int:
+        return len(self.values)
+
+    @property
+    def aic(self) -> float:
+        return 2 * self.k - 2 * self.loglik
+
+    @property
+    def bic(self) -> float:
+        return self.k * math.log(max(self.n, 1)) - 2 * self.loglik
+
+    def params(self) -> dict:
+        return dict(zip(self.names, self.values))
+
+    def all_params(self) -> dict:
+        out = {k: v[0] for k, v in self.fixed.items()}
+        out.update(self.params())
+        return out
+
+    def value(self, name: str) -> float:
+        return self.all_params()[name]
+
+    def warn(self, text: str) -> None:
+        if text not in self.warnings:
+            self.warnings.append(text)
+
+    # -- presentation ------------------------------------------------------
+    def to_json(self) -> dict:
+        params = {}
+        for name, v, se, (lo, hi) in zip(self.names, self.values, self.stderr, self.ci95):
+            params[name] = {"value": float(v), "stderr": float(se), "ci95": [float(lo), float(hi)],
+                            "unit": self.units[name]}
+        for name, (v, unit, why) in self.fixed.items():
+            params[name] = {"value": float(v), "stderr": None, "unit": unit, "fixed": why}
+        return {"model": self.model, "method": self.method, "params": params,
+                "fit": {k: round(float(v), 2) for k, v in self.fit.items()},
+                "correlation": {"params": list(self.names), "matrix": np.round(self.corr, 4).tolist()},
+                "aic": float(self.aic), "bic": float(self.bic), "n": int(self.n),
+                "warnings": list(self.warnings)}
+
+    def table(self) -> str:
+        lines = [f"model {self.model}   method {self.method}   "
+                 f"(cornering stiffness per axle, N/rad; ISO 8855 axes; SI units)", ""]
+        head = f"  {'parameter':<14}{'value':>13}{'std. error':>13}{'95% interval':>30}  unit"
+        lines.append(head)
+        lines.append("  " + "-" * (len(head) + 6))
+        for name, v, se, (lo, hi) in zip(self.names, self.values, self.stderr, self.ci95):
+            rel = f"({100 * se / abs(v):.1f}%)" if v else ""
+            lines.append(f"  {name:<14}{_num(v):>13}{_num(se):>13} {rel:>8}  [{_num(lo)}, {_num(hi)}]  "
+                         f"{self.units[name]}")
+        for name, (v, unit, why) in self.fixed.items():
+            lines.append(f"  {name:<14}{_num(v):>13}{'fixed':>13}           {why}  {unit}")
+        if self.fit:
+            lines.append("")
+            lines.append("  fit: " + "   ".join(f"{k} {v:.1f}%" for k, v in self.fit.items())
+                         + "   (100 (1 - |y - yhat| / |y - mean y|))")
+        if self.k > 1:
+            c = self.corr
+            strong = [(self.names[i], self.names[j], c[i, j]) for i in range(self.k) for j in range(i + 1, self.k)
+                      if abs(c[i, j]) > 0.8]
+            if strong:
+                lines.append("  strongly correlated: " + ", ".join(f"{a}-{b} {r:+.2f}" for a, b, r in strong))
+        for w in self.warnings:
+            lines.append(f"  warning: {w}")
+        return "\n".join(lines)
+
+
+def _num(x: float) -> str:
+    if x == 0 or not np.isfinite(x):
+        return f"{x:g}"
+    mag = abs(x)
+    if mag >= 1e4 or mag < 1e-3:
+        return f"{x:.4g}"
+    return f"{x:.4g}"

@@ -1,0 +1,119 @@
+"""Time-domain output-error fit over several stretches: the measured steer drives
+the model, and the simulated ay and r are matched to the measured ones.
+
+The start of each stretch (``discard_s``) is left out of the cost, so the
+unknown initial state does not bias the parameters; the model starts in the
+steady state of the first steer sample. Outputs are weighted by the inverse of
+their residual standard deviation (estimated, then refined once), which is the
+maximum-likelihood weighting for Gaussian errors of unknown size per output.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stid.fit.dataset import Stretch, check_excitation
+from stid.fit.result import FitResult, Prediction, fit_percent
+from stid.fit.solver import ParamSpace, covariance_sandwich, least_squares, to_physical
+from stid.fit import checks
+
+OUTPUTS = ("ay", "r")
+
+
+def _keep(st: Stretch, discard_s: float) -> np.ndarray:
+    return (st.t - st.t[0]) >= discard_s
+
+
+def simulate(model, p: dict, st: Stretch) -> np.ndarray:
+    return model.simulate(p, st.steer, st.dt, st.vx)
+
+
+def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
+             discard_s: float = 0.5, multistart: bool | None = None, space: ParamSpace | None = None,
+             method_name: str = "time") -> FitResult:
+    fixed = dict(fixed or {})
+    warnings = check_excitation(stretches)
+    keeps = [_keep(s, discard_s) for s in stretches]
+    ys = [s.y[k] for s, k in zip(stretches, keeps)]
+    sigma = np.std(np.vstack(ys), axis=0)
+    sigma = np.where(sigma > 0, sigma, 1.0)
+
+    def residual(p, sig):
+        out = []
+        for st, k, y in zip(stretches, keeps, ys):
+            out.append(((simulate(model, p, st)[k] - y) / sig).ravel())
+        return np.concatenate(out)
+
+    if space is None:
+        free = [n for n in model.param_names if n not in fixed]
+        space = ParamSpace(model, free, fixed)
+    p0 = model.defaults()
+    p0.update(init or {})
+    p0.update(fixed)
+    starts = [p0]
+    if multistart is None:
+        multistart = bool(model.effects)
+    if multistart:
+        for f in (0.3, 3.0):
+            q = dict(p0)
+            for e in model.effects:
+                for par in e.params:
+                    if par.log and par.name in space.free:
+                        q[par.name] = p0[par.name] * f
+            starts.append(q)
+    res = least_squares(lambda p: residual(p, sigma), space, starts)
+    p_hat = space.to_p(res.x)
+    # maximum likelihood: weight each output by its own residual level, refine once
+    r_now = residual(p_hat, np.ones(2)).reshape(-1, 2)
+    sigma = np.std(r_now, axis=0)
+    sigma = np.where(sigma > 0, sigma, 1.0)
+    res = least_squares(lambda p: residual(p, sigma), space, [p_hat])
+    p_hat = space.to_p(res.x)
+
+    n_free = len(space.free)
+    J_blocks, r_blocks = [], []
+    pos = 0
+    r_all = res.fun
+    for k in keeps:
+        m = int(k.sum()) * 2
+        J_blocks.append(res.jac[pos:pos + m].reshape(-1, 2, n_free))
+        r_blocks.append(r_all[pos:pos + m].reshape(-1, 2))
+        pos += m
+    cov = to_physical(covariance_sandwich(J_blocks, r_blocks), space, res.x)
+
+    preds = [Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k)
+             for st, k in zip(stretches, keeps)]
+    result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
+    for w in warnings:
+        result.warn(w)
+    for n in space.at_bound(res.x):
+        result.warn(f"{n} stopped at its bound ({p_hat[n]:.4g} {model.param(n).unit}): the data push it "
+                    "outside the plausible range, or the model lacks an effect")
+    checks.add_identifiability_warnings(result, model, stretches)
+    return result
+
+
+def make_result(model, method: str, space: ParamSpace, p_hat: dict, cov: np.ndarray, preds: list,
+                sigma=None) -> FitResult:
+    names = list(space.free)
+    values = np.array([p_hat[n] for n in names])
+    fixed = {n: (p_hat[n], model.param(n).unit, "held fixed") for n in space.fixed}
+    result = FitResult(model=model.name, method=method, names=names, values=values, cov=cov,
+                       units={n: model.param(n).unit for n in model.param_names},
+                       owners={n: model.owner(n) for n in model.param_names}, fixed=fixed, predictions=preds)
+    fill_fit_stats(result, preds)
+    return result
+
+
+def fill_fit_stats(result: FitResult, preds: list) -> None:
+    """Fit percent per output and the Gaussian log-likelihood over the kept samples."""
+    y = np.vstack([p.y[p.keep] for p in preds])
+    yh = np.vstack([p.yhat[p.keep] for p in preds])
+    result.fit = {o: fit_percent(y[:, i], yh[:, i]) for i, o in enumerate(OUTPUTS)}
+    e = y - yh
+    n = len(e)
+    var = np.maximum(np.mean(e ** 2, axis=0), 1e-300)
+    result.n = 2 * n
+    result.loglik = float(-0.5 * n * np.sum(np.log(2 * math.pi * var) + 1))

@@ -1,0 +1,145 @@
+"""A model is a base plus effects, written ``bicycle+effect+effect`` (one word
+per effect on the command line, one line in Python: ``Model("bicycle+actuator_lag",
+vehicle)``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stid.errors import InputError
+from stid.models.bicycle import BASE_PARAMS, bicycle
+from stid.models.effect import Context, get_effect
+from stid.models.params import Param
+
+BASES = ("bicycle",)
+MEASURED = ("ay", "r")
+_STAGE_ORDER = {"input": 0, "tyre": 1, "output": 2}
+
+
+def parse_model_name(name: str) -> tuple[str, list[str]]:
+    parts = [s.strip() for s in name.split("+") if s.strip()]
+    if not parts:
+        raise InputError("empty model name; write e.g. 'bicycle' or 'bicycle+actuator_lag'")
+    base, effects = parts[0], parts[1:]
+    if base not in BASES:
+        raise InputError(f"unknown base model {base!r}: a model starts with one of {', '.join(BASES)} "
+                         f"(e.g. 'bicycle+{base}' if {base!r} is an effect)")
+    if len(set(effects)) != len(effects):
+        raise InputError(f"model {name!r} names an effect twice")
+    return base, effects
+
+
+class Model:
+    """A composed single-track model.
+
+    Parameters
+    ----------
+    name : str
+        ``bicycle`` or ``bicycle+effect+...``.
+    vehicle : Vehicle
+        Supplies mass, a, b [kg, m] and scales the parameter defaults.
+    """
+
+    def __init__(self, name: str, vehicle):
+        self.base, names = parse_model_name(name)
+        self.effects = [get_effect(n)() for n in names]
+        self.vehicle = vehicle
+        self.params: list[Param] = list(BASE_PARAMS)
+        seen = {p.name: "bicycle" for p in self.params}
+        for e in self.effects:
+            for p in e.params:
+                if p.name in seen:
+                    raise InputError(f"effects {seen[p.name]} and {e.name} both define parameter {p.name!r}")
+                seen[p.name] = e.name
+                self.params.append(p)
+        self._ordered = sorted(self.effects, key=lambda e: _STAGE_ORDER[e.stage])
+        # Known sensor bandwidths are part of the measurement, not effects to discover:
+        # ADXL335 with 0.1 uF output capacitors: 50 Hz; LISY300AL internal filter: 88 Hz.
+        sensors = getattr(vehicle, "sensors", {}) or {}
+        self.sensor_bandwidth = {"ay": float(sensors.get("accel_bandwidth_hz", 50.0)),
+                                 "r": float(sensors.get("gyro_bandwidth_hz", 88.0))}
+
+    @property
+    def name(self) -> str:
+        return "+".join([self.base] + [e.name for e in self.effects])
+
+    @property
+    def param_names(self) -> list[str]:
+        return [p.name for p in self.params]
+
+    def param(self, name: str) -> Param:
+        return next(p for p in self.params if p.name == name)
+
+    def defaults(self) -> dict:
+        return {p.name: p.value("init", self.vehicle) for p in self.params}
+
+    def bounds(self, name: str):
+        p = self.param(name)
+        return p.value("lower", self.vehicle), p.value("upper", self.vehicle)
+
+    def owner(self, name: str) -> str:
+        for e in self.effects:
+            if any(p.name == name for p in e.params):
+                return e.name
+        return "bicycle"
+
+    def context(self, vx: float) -> Context:
+        v = self.vehicle
+        return Context(mass=v.mass, a=v.a, b=v.b, vx=float(vx))
+
+    @property
+    def nonlinear(self) -> bool:
+        return any(e.nonlinear for e in self.effects)
+
+    def build(self, p: dict, vx: float):
+        """The linear(ised) state-space system at speed vx."""
+        ctx = self.context(vx)
+        opts = {}
+        for e in self._ordered:
+            if e.stage == "tyre":
+                opts.update(e.tyre_options(p, ctx))
+        sys = bicycle(p, ctx, **opts)
+        for e in self._ordered:
+            if e.stage in ("input", "output"):
+                sys = e.apply(sys, p, ctx)
+        for out, f in self.sensor_bandwidth.items():
+            if 0 < f < float("inf"):
+                sys = sys.filter_output(out, f)
+        return sys
+
+    def freqresp(self, p: dict, f_hz: np.ndarray, vx: float) -> np.ndarray:
+        """Responses of (ay, r) to steer at f_hz, linearised at straight running: (2, n_f)."""
+        return self.build(p, vx).select(list(MEASURED)).freqresp(f_hz)
+
+    def simulate(self, p: dict, steer: np.ndarray, dt: float, vx: float, outputs=MEASURED,
+                 max_iter: int = 40, tol: float = 1e-6) -> np.ndarray:
+        """Measured outputs for a steer history (n_t,) at constant speed: (n_t, len(outputs)).
+
+        Linear models are one vectorised filter pass. With a nonlinear tyre effect
+        the whole trajectory is iterated (waveform relaxation): simulate, compute
+        the force correction from the slip angles, simulate again with it as an
+        input, until the correction stops changing.
+        """
+        sys = self.build(p, vx)
+        if not self.nonlinear:
+            return sys.simulator(dt, list(outputs), ["delta"])(steer)
+        ctx = self.context(vx)
+        outs = list(outputs) + ["alpha_f", "alpha_r"]
+        sim = sys.simulator(dt, outs)
+        u = np.zeros((len(steer), 3))
+        u[:, 0] = steer
+        dF = np.zeros((len(steer), 2))
+        scale = max(p["Cf"], p["Cr"]) * 1e-3
+        for _ in range(max_iter):
+            y = sim(u)
+            new = np.zeros_like(dF)
+            for e in self.effects:
+                c = e.force_correction(y[:, -2], y[:, -1], p, ctx)
+                if c is not None:
+                    new += np.column_stack(c)
+            change = np.max(np.abs(new - dF)) / scale
+            dF = dF + 0.8 * (new - dF)  # damped: converges also close to the friction limit
+            u[:, 1:] = dF
+            if change < tol * 1e3:
+                break
+        return sim(u)[:, : len(outputs)]
