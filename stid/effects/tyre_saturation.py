@@ -8,7 +8,8 @@ from stid.models.params import Param
 class TyreSaturation(Effect):
     name = "tyre_saturation"
     stage = "tyre"
-    params = (Param("mu", "-", "tyre-road friction coefficient", 1.0, 0.1, 3.0, zero=1e6),)
+    params = (Param("mu", "-", "tyre-road friction coefficient", 1.0, 0.1, 3.0, zero=1e6,
+                    multistart=False),)
     physics = ("Side force levels off at the friction limit: Fy = mu Fz tanh(C alpha / (mu Fz)) per "
                "axle, linear for small slip and bounded by mu Fz. Below about 40% of the limit the "
                "bicycle model is exact; beyond it the car needs more steer than the model predicts.")

@@ -61,11 +61,18 @@ def fit_freq(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             q = dict(p0)
             for e in model.effects:
                 for par in e.params:
-                    if par.log and par.name in space.free:
+                    if par.log and par.multistart and par.name in space.free:
                         q[par.name] = p0[par.name] * f
-            starts.append(q)
+            if q != p0:
+                starts.append(q)
     res = least_squares(lambda p: frf_residual(model, p, frfs, weighting), space, starts)
     p_hat = space.to_p(res.x)
+    col = np.linalg.norm(res.jac, axis=0)
+    blind = [n for n, c in zip(space.free, col) if c < 1e-9 * max(col.max(), 1e-300)]
+    if blind:
+        warnings.append(f"{', '.join(blind)} do not change the frequency responses (means and constant "
+                        "offsets are removed before spectra are taken): not identifiable by this method; "
+                        "use --method time")
     cov = to_physical(covariance_white(res.jac, res.fun, len(space.free)), space, res.x)
     preds = [Prediction(s.name, s.t, s.steer, s.y, model.simulate(p_hat, s.steer, s.dt, s.vx), s.vx,
                         _keep(s, 0.5)) for s in stretches]

@@ -68,6 +68,10 @@ class ParamSpace:
 def least_squares(residual, space: ParamSpace, starts: list, **kw):
     """Run scipy's bounded trust-region least squares from each start; keep the best."""
     lo, hi = space.bounds_x()
+    if getattr(space.model, "nonlinear", False):
+        # an iterated simulation is exact only to its tolerance: difference over a step
+        # large enough that the tolerance does not show in the Jacobian
+        kw.setdefault("diff_step", 1e-5)
     best = None
     for p0 in starts:
         x0 = np.clip(space.to_x(p0), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))

@@ -60,9 +60,10 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             q = dict(p0)
             for e in model.effects:
                 for par in e.params:
-                    if par.log and par.name in space.free:
+                    if par.log and par.multistart and par.name in space.free:
                         q[par.name] = p0[par.name] * f
-            starts.append(q)
+            if q != p0:
+                starts.append(q)
     res = least_squares(lambda p: residual(p, sigma), space, starts)
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once

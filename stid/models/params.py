@@ -24,6 +24,7 @@ class Param:
     upper: object
     log: bool = True
     zero: float | None = None
+    multistart: bool = True  # also try 0.3x and 3x the initial value (non-convex costs)
 
     def value(self, attr, vehicle):
         v = getattr(self, attr)
