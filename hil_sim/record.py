@@ -95,10 +95,23 @@ def write_csv(run: SimRun, stream: bytes, path) -> None:
     steer = np.where(s["steer_us"] > 0, (s["steer_us"] - car.steer_center_us) / car.steer_us_per_rad, 0.0)
     vx = _hall_speed(t_raw, s["wheel_count"].astype(np.int64), s["wheel_t_us"].astype(np.int64),
                      2 * math.pi * car.wheel_radius)
+    cols = {"t": t, "steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax, "delta_cmd": steer}
+    if run.cfg.beta_sensor is not None:
+        # an optical slip sensor (Correvit-style) sampled with the firmware's samples
+        tr = run.traj
+        beta = np.arctan2(tr.vy, np.maximum(tr.vx, 0.1))
+        t_true = (t_raw - t_raw[0] + (t_raw[0] - run.cfg.start_ticks) % p.MOD) * 1e-6
+        rng = np.random.default_rng(run.cfg.seed + 99)
+        cols["beta"] = np.interp(t_true, tr.t, beta) + run.cfg.beta_sensor * rng.standard_normal(len(t))
+    write_columns(path, cols)
+
+
+def write_columns(path, cols: dict) -> None:
+    names = list(cols)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["t", "steer", "ay", "r", "vx", "ax", "delta_cmd"])
-        for row in zip(t, steer, ay, r, vx, ax, steer):
+        w.writerow(names)
+        for row in zip(*(cols[n] for n in names)):
             w.writerow([f"{row[0]:.6f}"] + [f"{x:.6g}" for x in row[1:]])
 
 

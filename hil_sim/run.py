@@ -32,6 +32,7 @@ class SimConfig:
     fs_sig: int = 5000  # Hz, pin voltage grid
     start_ticks: int = 0
     stalls: tuple = ()  # ((at_s, for_s), ...): the host stops reading (MCU overrun)
+    beta_sensor: float | None = None  # rms noise [rad] of an optical body-slip sensor in the CSV, or None
     car: vehicle.CarParams = field(default_factory=vehicle.CarParams)
     sens: sensors.SensorParams = field(default_factory=sensors.SensorParams)
 

@@ -11,8 +11,6 @@ from host.errors import HostError
 from stid.errors import StidError
 
 NOT_YET = {
-    "calibrate": "estimate sensor offsets and mounting from a stand-still run",
-    "fit": "fit the single-track model to runs",
     "compare": "compare models against measurements",
     "diagnose": "name the physical effect the model is missing",
     "report": "write an HTML report",
@@ -31,6 +29,38 @@ def _cmd_export(args) -> int:
     from stid.export import export_csv
 
     return export_csv(args.run, args.csv, args.vehicle)
+
+
+def _cmd_fit(args) -> int:
+    import json
+
+    from stid.fit.fitting import fit
+    from stid.load import load_runs
+    from stid.progress import Progress
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    runs = load_runs(args.runs, vehicle)
+    _print_load_warnings(runs)
+    with Progress(f"fitting {args.model} ({args.method})"):
+        res = fit(runs, vehicle, args.model, args.method)
+    if args.json:
+        print(json.dumps(res.to_json(), indent=1))
+    else:
+        print(res.table())
+    return 0
+
+
+def _print_load_warnings(runs) -> None:
+    for r in runs:
+        for w in r.meta.get("warnings", []):
+            print(f"warning: {r.name}: {w}", file=sys.stderr)
+
+
+def _cmd_calibrate(args) -> int:
+    from stid.calibrate import calibrate_cli
+
+    return calibrate_cli(args.standstill, args.vehicle, args.circle or (), args.output)
 
 
 def _cmd_repair(args) -> int:
@@ -64,6 +94,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", required=True, help="output CSV path")
     p.add_argument("--vehicle", help="vehicle TOML (steering and sensor calibration; default: datasheet values)")
     p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser("fit", help="fit a model to runs: parameters with uncertainty, fit percent, warnings")
+    p.add_argument("runs", nargs="+", metavar="RUN", help="RUN.mcap (stid-log) or RUN.csv (import contract)")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
+    p.add_argument("--model", default="bicycle", help="bicycle or bicycle+effect+... (default bicycle)")
+    p.add_argument("--method", default="auto", choices=["auto", "steady", "freq", "freq-study", "time", "two-step"],
+                   help="auto: two-step when there are steady circles and a constant-speed stretch")
+    p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
+    p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
+    p.add_argument("standstill", help="STANDSTILL.mcap: the car at rest on level ground, engine off")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML to update ([sensors], [steering])")
+    p.add_argument("--circle", action="append", metavar="RUN", help="slow steady circles for the steering calibration")
+    p.add_argument("-o", "--output", help="write here instead of updating the vehicle file")
+    p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("repair", help="rewrite a truncated MCAP file (logger killed) into a complete one")
     p.add_argument("file")

@@ -11,7 +11,7 @@ import pandas as pd
 from host.errors import HostError
 from host.mcap_read import read_log
 from host import units
-from stid import calibration
+from stid import convert
 from stid.errors import InputError
 from stid.run import Run
 from stid.vehicle_file import Vehicle, default_vehicle
@@ -154,9 +154,9 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     step = int(np.median(np.diff(t_us)))
     tu = np.arange(t_us[0], t_us[-1] + 1, step)
     filled = len(tu) - len(t_us)
-    ax, ay, az = calibration.accelerations(s, hello, vehicle)
-    r = calibration.yaw_rate(s, hello, vehicle)
-    steer = calibration.steer_angle(s["steer_us"], vehicle)
+    ax, ay, az = convert.accelerations(s, hello, vehicle)
+    r = convert.yaw_rate(s, hello, vehicle)
+    steer = convert.steer_angle(s["steer_us"], vehicle)
     ppr = int(hello.get("wheel", {}).get("pulses_per_rev", vehicle.pulses_per_rev))
     vx = units.wheel_speed(t_us, s["t_us"], s["wheel_count"], s["wheel_t_us"], ppr, vehicle.wheel_radius,
                            int(hello.get("mod", 1 << 30)))
@@ -180,7 +180,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     if clip.any():
         run.warn(f"{int(clip.sum())} accelerometer samples at the ADC limit (clipped)")
         run.extra["clipped"] = clip.astype(float) if not filled else np.interp(tu, t_us, clip.astype(float))
-    bias = calibration.gyro_bias_from_still(run.r, run.vx, fs)
+    bias = convert.gyro_bias_from_still(run.r, run.vx, fs)
     if bias is not None:
         run.r = run.r - bias
         run.meta["gyro_bias"] = bias

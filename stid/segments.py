@@ -27,11 +27,29 @@ def still_mask(vx: np.ndarray, fs: float, v_still: float = 0.05, min_s: float = 
 
 
 def constant_speed(vx: np.ndarray, fs: float, tol: float = 0.1, min_s: float = 3.0, v_min: float = 0.5):
-    """(start, stop) stretches where speed stays within ``tol`` (relative) of its 1 s mean."""
+    """(start, stop) stretches where the speed stays within +-tol (relative) of the
+    stretch's own middle speed: a linear model at one speed fits them. A slow speed
+    sweep is not constant speed, however smooth it is locally."""
     win = max(3, int(fs))
     mean = uniform_filter1d(vx, win)
-    ok = (vx > v_min) & (np.abs(vx - mean) < tol * np.maximum(mean, v_min)) & (mean > v_min)
-    return _runs_of(ok, int(min_s * fs))
+    moving = (vx > v_min) & (mean > v_min)
+    out = []
+    n_min = int(min_s * fs)
+    for a, b in _runs_of(moving, n_min):
+        i = a
+        while i < b:
+            lo = hi = mean[i]
+            j = i
+            while j < b:
+                lo2, hi2 = min(lo, mean[j]), max(hi, mean[j])
+                if hi2 - lo2 > 2 * tol * 0.5 * (hi2 + lo2):
+                    break
+                lo, hi = lo2, hi2
+                j += 1
+            if j - i >= n_min:
+                out.append((int(i), int(j)))
+            i = j if j > i else i + 1
+    return out
 
 
 def steady_state(steer, ay, r, vx, fs: float, window_s: float = 0.5, rate_tol: float = 0.15):

@@ -1,0 +1,145 @@
+"""``stid calibrate``: sensor zeros and mounting from a stand-still recording,
+steering calibration from steady circles; written into the vehicle file.
+
+Stand-still on level ground: the accelerometer must read (0, 0, +g) in body
+axes and the gyro zero. With az measured, the direction of gravity gives the
+mounting roll and pitch; a single level stand-still cannot tell a tilted sensor
+from a zero-g offset on x and y, so without az the x/y readings are taken as
+offsets (for a few degrees the two differ by under 0.2% in dynamics).
+
+Steering: on a circle at low speed the front wheel angle is delta = atan(L/R)
+with R = vx/r (kinematic, no slip). Steady stretches at two or more servo pulse
+widths give the centre pulse and the pulse change per radian.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+
+from host import units
+from host.errors import HostError
+from host.mcap_read import read_log
+from stid import segments
+from stid.errors import InputError
+from stid.vehicle_file import Vehicle, load_vehicle
+
+G = units.G
+
+
+def standstill(path, vehicle: Vehicle) -> dict:
+    try:
+        log = read_log(path)
+    except HostError as e:
+        raise InputError(str(e)) from None
+    s = log.samples
+    if len(s) < 200 or not log.hello:
+        raise InputError(f"{path}: too short for a stand-still calibration (need ≥ 2 s with a HELLO)")
+    hello = log.hello
+    acc = {k: units.accel_si(s[k], hello) for k in ("ax", "ay", "az")}
+    moving = np.diff(s["wheel_count"].astype(np.int64)) != 0
+    if moving.any():
+        raise InputError(f"{path}: the wheels turned during the recording; calibrate standing still")
+    r_v = units.counts_to_volts(s["yaw"], hello)
+    noise = {k: float(np.nanstd(v)) for k, v in acc.items()}
+    if max(v for v in noise.values() if np.isfinite(v)) > 0.5:
+        raise InputError(f"{path}: the accelerometer is not still (std up to "
+                         f"{max(noise.values()):.2f} m/s^2); calibrate with the engine off, car at rest")
+    mean = {k: float(np.nanmean(v)) if np.isfinite(np.nanmean(v)) else None for k, v in acc.items()}
+    out = {"gyro_zero_v": float(np.mean(r_v))}
+    notes = []
+    if mean["az"] is not None:
+        gx, gy, gz = mean["ax"], mean["ay"], mean["az"]
+        norm = math.sqrt(gx * gx + gy * gy + gz * gz)
+        if abs(norm - G) > 0.1 * G:
+            raise InputError(f"{path}: the accelerometer reads {norm:.2f} m/s^2 at rest instead of "
+                             f"{G} m/s^2: wrong supply voltage or sensor part in HELLO?")
+        roll, pitch = _mounting(np.array([gx, gy, gz]))
+        out["mount_roll"], out["mount_pitch"] = roll, pitch
+        out["accel_offset"] = [0.0, 0.0, float(norm - G)]
+        notes.append(f"mounting roll {math.degrees(out['mount_roll']):+.2f} deg, pitch "
+                     f"{math.degrees(out['mount_pitch']):+.2f} deg from the direction of gravity")
+    else:
+        out["accel_offset"] = [float(mean["ax"]), float(mean["ay"]), 0.0]
+        out["mount_roll"] = 0.0
+        out["mount_pitch"] = 0.0
+        notes.append("az is not sampled on this board: x/y readings at rest taken as offsets "
+                     "(a tilt and an offset look the same on level ground)")
+    out["_notes"] = notes
+    out["_gyro_bias_rad_s"] = float(np.radians((out["gyro_zero_v"] - units.GYRO_ZERO_V) / units.GYRO_V_PER_DPS))
+    return out
+
+
+def _mounting(g_sensor: np.ndarray) -> tuple[float, float]:
+    """Roll and pitch (as stid.convert applies them) that turn gravity onto body z."""
+    from scipy.optimize import least_squares
+
+    from stid.convert import mount_rotation
+
+    res = least_squares(lambda a: (mount_rotation(a[0], a[1]) @ g_sensor)[:2], [0.0, 0.0])
+    return float(res.x[0]), float(res.x[1])
+
+
+def steering_from_circles(paths, vehicle: Vehicle) -> dict:
+    from stid.load import load_file
+
+    pulses, angles = [], []
+    for p in paths:
+        for run in load_file(p, vehicle):
+            fs = run.fs
+            mask = segments.steady_state(run.steer, run.ay, run.r, run.vx, fs)
+            mask &= (run.vx > 0.5) & (np.abs(run.ay) < 0.15 * G)  # low speed: kinematic steering
+            if mask.sum() < fs:
+                continue
+            # the pulse widths behind run.steer, from the current calibration
+            us = run.steer * vehicle.steer_us_per_rad + vehicle.steer_center_us
+            for a, b in segments._runs_of(mask, int(fs)):
+                pulses.append(float(np.mean(us[a:b])))
+                angles.append(float(np.arctan(vehicle.L * np.mean(run.r[a:b]) / np.mean(run.vx[a:b]))))
+    if len(pulses) < 2 or np.ptp(pulses) < 50:
+        raise InputError("steering calibration needs steady circles at two or more steering settings "
+                         "(e.g. one left and one right) driven slowly (ay below 0.15 g)")
+    slope, center_angle = np.polyfit(pulses, angles, 1)
+    us_per_rad = 1.0 / slope
+    center = -center_angle / slope
+    return {"center_us": float(center), "us_per_rad": float(us_per_rad), "_points": len(pulses)}
+
+
+def _replace_table(text: str, name: str, values: dict) -> str:
+    """Replace (or append) one [table] of a TOML text, keeping everything else."""
+    body = tomli_w.dumps({name: {k: v for k, v in values.items() if not k.startswith("_")}})
+    pat = re.compile(rf"^\[{re.escape(name)}\][^\[]*", re.M)
+    if pat.search(text):
+        return pat.sub(body.rstrip() + "\n\n", text, count=1)
+    return text.rstrip() + "\n\n" + body
+
+
+def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: str | None = None) -> int:
+    vehicle = load_vehicle(vehicle_path)
+    st = standstill(standstill_path, vehicle)
+    sensors = dict(vehicle.sensors)
+    sensors.update({k: v for k, v in st.items() if not k.startswith("_")})
+    text = Path(vehicle_path).read_text()
+    text = _replace_table(text, "sensors", sensors)
+    print(f"gyro zero {st['gyro_zero_v']:.4f} V (bias {st['_gyro_bias_rad_s']:+.4f} rad/s against the "
+          f"datasheet 1.65 V); accelerometer offsets {np.round(st['accel_offset'], 3).tolist()} m/s^2", file=sys.stderr)
+    for n in st["_notes"]:
+        print(n, file=sys.stderr)
+    if circles:
+        sc = steering_from_circles(circles, vehicle)
+        steering = dict(vehicle.raw.get("steering", {}))
+        steering.update({"center_us": sc["center_us"], "us_per_rad": sc["us_per_rad"]})
+        text = _replace_table(text, "steering", steering)
+        print(f"steering: centre {sc['center_us']:.1f} us, {sc['us_per_rad']:.1f} us per rad "
+              f"(from {sc['_points']} steady stretches)", file=sys.stderr)
+    out = Path(output or vehicle_path)
+    if out.exists() and output is None:
+        out.with_suffix(out.suffix + ".bak").write_text(Path(vehicle_path).read_text())
+    out.write_text(text)
+    print(f"wrote {out}" + (f" (previous version kept as {out}.bak)" if output is None else ""), file=sys.stderr)
+    return 0
