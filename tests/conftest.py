@@ -60,3 +60,16 @@ def stimulus_file(tmp_path):
     path = tmp_path / "stim.bin"
     simple_stimulus(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def simdir(tmp_path_factory):
+    """One directory of simulated runs shared by the whole session (see simdata.py)."""
+    return tmp_path_factory.mktemp("sim")
+
+
+@pytest.fixture(scope="session")
+def rc_vehicle():
+    from stid.vehicle_file import load_vehicle
+
+    return load_vehicle(REPO / "docs" / "examples" / "rc8.toml")

@@ -27,9 +27,22 @@ class FRF:
         return (1 - g2) / (2 * self.n_avg * g2) * np.abs(self.H) ** 2
 
 
-def estimate_frf(st: Stretch, seg_s: float = 5.0, f_min: float = 0.2, f_max: float | None = None) -> FRF:
+def segment_length(st: Stretch, lines: int = 25) -> float:
+    """Welch segment [s]: ~``lines`` frequency lines inside the excited band (leakage bias
+    shrinks with resolution), at least 5 s, at most a quarter of the record (variance)."""
+    fs = 1.0 / st.dt
+    x = st.steer - np.mean(st.steer)
+    f, P = signal.welch(x, fs=fs, nperseg=int(min(len(x) // 2, 5 * fs)))
+    edge = f[np.flatnonzero(P > 1e-2 * P.max())[-1]] if np.any(P > 0) else fs / 4
+    T = len(x) / fs
+    return float(np.clip(lines / max(edge, 1e-3), 5.0, max(T / 4, 1.0)))
+
+
+def estimate_frf(st: Stretch, seg_s: float | None = None, f_min: float = 0.2, f_max: float | None = None) -> FRF:
     fs = 1.0 / st.dt
     n = len(st.steer)
+    if seg_s is None:
+        seg_s = segment_length(st)
     nperseg = int(min(n // 2, seg_s * fs))
     nperseg = max(nperseg, 16)
     x = st.steer - np.mean(st.steer)
