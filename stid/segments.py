@@ -26,7 +26,7 @@ def still_mask(vx: np.ndarray, fs: float, v_still: float = 0.05, min_s: float = 
     return out
 
 
-def constant_speed(vx: np.ndarray, fs: float, tol: float = 0.1, min_s: float = 3.0, v_min: float = 0.5):
+def constant_speed(vx: np.ndarray, fs: float, tol: float = 0.05, min_s: float = 3.0, v_min: float = 0.5):
     """(start, stop) stretches where the speed stays within +-tol (relative) of the
     stretch's own middle speed: a linear model at one speed fits them. A slow speed
     sweep is not constant speed, however smooth it is locally."""

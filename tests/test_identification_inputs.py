@@ -1,0 +1,161 @@
+"""Bad input ends in one clear message and a non-zero exit; the loaders' contracts."""
+
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import REPO, tool
+from simdata import random_steer_pair, sim_run
+
+VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
+
+
+def stid(*args):
+    return subprocess.run([tool("stid"), *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def write_csv(path, cols):
+    names = list(cols)
+    rows = np.column_stack([cols[n] for n in names])
+    path.write_text(",".join(names) + "\n" + "\n".join(",".join(f"{v:.6g}" for v in r) for r in rows) + "\n")
+    return path
+
+
+def good_cols(n=3000, fs=100.0):
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(0)
+    steer = 0.03 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * rng.standard_normal(n)
+    return {"t": t, "steer": steer, "ay": 20 * steer, "r": 3 * steer, "vx": np.full(n, 5.0)}
+
+
+def assert_fails(r, *words):
+    assert r.returncode != 0, r.stdout
+    assert "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) <= 3, r.stderr
+    for w in words:
+        assert w in r.stderr, r.stderr
+
+
+def test_missing_columns(tmp_path):
+    cols = good_cols()
+    del cols["r"]
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", cols), "--vehicle", VEHICLE), "lacks the column", "r")
+
+
+def test_nan_values(tmp_path):
+    cols = good_cols()
+    cols["ay"][100:105] = np.nan
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", cols), "--vehicle", VEHICLE), "'ay'", "missing")
+
+
+def test_degrees_instead_of_radians(tmp_path):
+    cols = good_cols()
+    cols["steer"] = np.degrees(cols["steer"]) * 5
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", cols), "--vehicle", VEHICLE), "degrees", "steer")
+
+
+def test_constant_steer(tmp_path):
+    cols = good_cols()
+    cols["steer"][:] = 0.02
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", cols), "--vehicle", VEHICLE, "--method", "time"),
+                 "constant")
+
+
+def test_run_too_short(tmp_path):
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", {k: v[:10] for k, v in good_cols().items()}),
+                      "--vehicle", VEHICLE), "only 10 rows")
+
+
+def test_run_without_a_constant_speed_stretch(tmp_path):
+    cols = good_cols()
+    cols["vx"] = np.linspace(2.0, 12.0, len(cols["t"]))  # accelerating all the way
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", cols), "--vehicle", VEHICLE, "--method", "time"),
+                 "constant-speed")
+
+
+def test_unreadable_and_empty_files(tmp_path):
+    (tmp_path / "e.mcap").write_bytes(b"")
+    assert_fails(stid("fit", tmp_path / "e.mcap", "--vehicle", VEHICLE), "empty")
+    (tmp_path / "g.csv").write_bytes(b"\x00\xff\xfe garbage \x01")
+    assert_fails(stid("fit", tmp_path / "g.csv", "--vehicle", VEHICLE))
+    assert_fails(stid("fit", tmp_path / "nope.csv", "--vehicle", VEHICLE), "does not exist")
+
+
+def test_vehicle_file_without_mass(tmp_path):
+    v = tmp_path / "v.toml"
+    v.write_text('name = "x"\na = 0.2\nb = 0.3\n')
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), "mass")
+    v.write_text('mass = 9310\na = 232.6\nb = 287.4\n')
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), "kg and m")
+    v.write_text("mass = [oops\n")
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), "TOML")
+
+
+def test_unknown_model_and_effect(tmp_path):
+    csv = write_csv(tmp_path / "a.csv", good_cols())
+    assert_fails(stid("fit", csv, "--vehicle", VEHICLE, "--model", "bicycle+warp_drive"), "unknown effect",
+                 "actuator_lag")
+    assert_fails(stid("fit", csv, "--vehicle", VEHICLE, "--model", "tricycle"), "unknown base model")
+
+
+def test_irregular_time_is_resampled_with_a_warning(tmp_path):
+    from stid.load import load_csv
+
+    cols = good_cols()
+    cols["t"] = cols["t"] + np.random.default_rng(1).uniform(0, 0.004, len(cols["t"]))
+    cols["t"].sort()
+    run = load_csv(write_csv(tmp_path / "a.csv", cols))
+    assert np.allclose(np.diff(run.t), np.diff(run.t)[0])
+    assert any("irregular" in w for w in run.meta["warnings"])
+
+
+def test_json_mode_keeps_stdout_clean(simdir):
+    import json
+
+    r = stid("fit", *random_steer_pair(simdir), "--vehicle", VEHICLE, "--method", "freq", "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["params"]["Cf"]["unit"] == "N/rad"
+
+
+def test_truncated_mcap_is_read_up_to_the_cut(simdir, tmp_path):
+    from stid.load import load_file
+
+    src = random_steer_pair(simdir)[0]
+    data = src.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    full = load_file(src)[0]
+    part = load_file(cut)[0]
+    assert 0.3 * len(full) < len(part) < len(full)
+    assert np.allclose(part.ay, full.ay[: len(part)])
+    assert any("cut short" in w for w in part.meta["warnings"])
+
+
+def test_model_frequency_response_agrees_with_python_control(rc_vehicle):
+    import control
+
+    from stid.models.model import Model
+
+    m = Model("bicycle+actuator_lag+tyre_relaxation+body_roll+accel_offset", rc_vehicle)
+    p = m.defaults()
+    f = np.logspace(-1, 1.3, 40)
+    ours = m.freqresp(p, f, 5.0)
+    sys = m.build(p, 5.0).select(["ay", "r"])
+    resp = control.frequency_response(sys.to_control(), 2 * np.pi * f)
+    theirs = np.asarray(resp.complex)[:, 0, :] if np.asarray(resp.complex).ndim == 3 else np.asarray(resp.complex)
+    assert np.allclose(ours, theirs, rtol=1e-8, atol=1e-10)
+
+
+def test_steady_state_gain_matches_the_understeer_formula(rc_vehicle):
+    from stid.models.model import Model
+
+    m = Model("bicycle", rc_vehicle)
+    p = {"Cf": 400.0, "Cr": 475.0, "Iz": 0.25}
+    v = rc_vehicle
+    K = v.mass / v.L * (v.b / p["Cf"] - v.a / p["Cr"])
+    for vx in (2.0, 5.0, 9.0):
+        H = m.freqresp(p, np.array([1e-4]), vx)
+        assert abs(H[1, 0]) == pytest.approx(vx / (v.L + K * vx ** 2), rel=1e-6)
+        assert abs(H[0, 0]) == pytest.approx(vx ** 2 / (v.L + K * vx ** 2), rel=1e-6)
