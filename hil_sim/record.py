@@ -103,6 +103,15 @@ def write_csv(run: SimRun, stream: bytes, path) -> None:
         t_true = (t_raw - t_raw[0] + (t_raw[0] - run.cfg.start_ticks) % p.MOD) * 1e-6
         rng = np.random.default_rng(run.cfg.seed + 99)
         cols["beta"] = np.interp(t_true, tr.t, beta) + run.cfg.beta_sensor * rng.standard_normal(len(t))
+    if run.cfg.wheel_speeds:
+        from hil_sim.vehicle import wheel_speeds
+
+        tr = run.traj
+        t_true = (t_raw - t_raw[0] + (t_raw[0] - run.cfg.start_ticks) % p.MOD) * 1e-6
+        w = [np.interp(t_true, tr.t, x) for x in wheel_speeds(tr, car)]
+        for name, x in zip(("w_fl", "w_fr", "w_rl", "w_rr"), w):
+            cols[name] = x
+        cols["vx"] = 0.5 * (w[0] + w[1]) * car.wheel_radius  # free-rolling fronts measure the speed
     write_columns(path, cols)
 
 

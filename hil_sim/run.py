@@ -33,6 +33,7 @@ class SimConfig:
     start_ticks: int = 0
     stalls: tuple = ()  # ((at_s, for_s), ...): the host stops reading (MCU overrun)
     beta_sensor: float | None = None  # rms noise [rad] of an optical body-slip sensor in the CSV, or None
+    wheel_speeds: bool = False  # four wheel-speed sensors in the CSV (w_fl..w_rr); vx from the free fronts
     car: vehicle.CarParams = field(default_factory=vehicle.CarParams)
     sens: sensors.SensorParams = field(default_factory=sensors.SensorParams)
 

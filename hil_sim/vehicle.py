@@ -45,6 +45,8 @@ class CarParams:
     Cf: float = 400.0  # N/rad, front axle
     Cr: float = 475.0  # N/rad, rear axle
     wheel_radius: float = 0.045  # m
+    track: float = 0.25  # m, between left and right wheels
+    Cx: float = 700.0  # N per unit longitudinal slip, rear (driven) axle; the fronts roll freely
     # effect magnitudes (used only when the effect is on)
     tau_steer: float = 0.06  # s, servo first-order lag
     steer_rate_max: float = 6.0  # rad/s at the road wheel (~0.1 s per 60 deg servo)
@@ -108,6 +110,18 @@ class Trajectory:
     y: np.ndarray
     psi: np.ndarray
     steer_pulses_us: np.ndarray  # one servo pulse width per servo period
+    Fx: np.ndarray  # N, drive force at the rear axle
+
+
+def wheel_speeds(traj: "Trajectory", car: "CarParams"):
+    """Angular speeds [rad/s] of fl, fr, rl, rr. Front wheels roll freely; the driven rear
+    wheels slip by s = Fx / Cx (quasi-static: the wheel's spin-up is far faster than the car)."""
+    R, h = car.wheel_radius, car.track / 2
+    s = traj.Fx / car.Cx
+    out = []
+    for side, slip in ((-1, 0.0), (1, 0.0), (-1, s), (1, s)):
+        out.append(np.maximum(traj.vx + side * h * traj.r, 0.0) * (1 + slip) / R)
+    return out
 
 
 def _mf(alpha, C, Fz, mu, shape):
@@ -182,10 +196,10 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
             dphid = 0.0
         cp, sp = math.cos(psi), math.sin(psi)
         return (vx * cp - vy * sp, vx * sp + vy * cp, r, dvx, dvy, dr, ddelta, dFyf, dFyr,
-                phid, dphid, vx, err), (Fyf, Fyr, delta, dvx, dvy, dr)
+                phid, dphid, vx, err), (Fyf, Fyr, delta, dvx, dvy, dr, Fx)
 
     out = np.zeros((n, 13))
-    aux = np.zeros((n, 6))
+    aux = np.zeros((n, 7))
     delta_cmd = np.zeros(n)
     period = car.servo_period_us * 1e-6
     n_pulses = int(t[-1] // period) + 1
@@ -225,4 +239,4 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     pulses[k_next:] = pulses[k_next - 1] if k_next else int(car.steer_center_us)
     return Trajectory(t=t, delta_cmd=delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
                       r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
-                      x=X, y=Y, psi=psi, steer_pulses_us=pulses)
+                      x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6])

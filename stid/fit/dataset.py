@@ -53,6 +53,19 @@ def prefilter(x: np.ndarray, fs: float, f_hz: float = PREFILTER_HZ) -> np.ndarra
     return signal.sosfiltfilt(sos, x)
 
 
+def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", "vx")):
+    """Prefilter and decimate whole signals of a run (so stretches cut from them carry
+    no filter edge transients): (decimation factor, dict of arrays, time)."""
+    fs = run.fs
+    q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
+    out = {}
+    for n in names:
+        x = getattr(run, n) if hasattr(run, n) and getattr(run, n) is not None else run.extra[n]
+        out[n] = _decimate(prefilter(x, fs), q)
+    m = min(len(v) for v in out.values())
+    return q, {k: v[:m] for k, v in out.items()}, run.t[::q][:m]
+
+
 def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: float = TARGET_FS,
                       trim_s: float = 0.5) -> list[Stretch]:
     """Constant-speed stretches of every run, for the frequency- and time-domain fits."""
@@ -60,20 +73,18 @@ def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: 
     reasons = []
     for run in runs:
         fs = run.fs
-        q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
         found = segments.constant_speed(run.vx, fs, min_s=min_s + 2 * trim_s)
         if not found:
             reasons.append(f"{run.name}: no stretch of at least {min_s + 2 * trim_s:.0f} s at constant speed")
+            continue
+        q, sig, t = filtered(run, target_fs)
         for k, (a, b) in enumerate(found):
-            a += int(trim_s * fs)
-            b -= int(trim_s * fs)
-            piece = run.slice(a, b)
-            pf = lambda x: _decimate(prefilter(x, fs), q)  # noqa: E731
-            steer = pf(piece.steer)
-            st = Stretch(name=run.name if len(found) == 1 else f"{run.name}[{k + 1}]",
-                         t=piece.t[::q][: len(steer)], steer=steer, ay=pf(piece.ay), r=pf(piece.r),
-                         vx_series=_decimate(piece.vx, q), vx=float(np.median(piece.vx)))
-            out.append(st)
+            a = (a + int(trim_s * fs)) // q
+            b = min((b - int(trim_s * fs)) // q, len(t))
+            sl = slice(a, b)
+            out.append(Stretch(name=run.name if len(found) == 1 else f"{run.name}[{k + 1}]", t=t[sl],
+                               steer=sig["steer"][sl], ay=sig["ay"][sl], r=sig["r"][sl], vx_series=sig["vx"][sl],
+                               vx=float(np.median(run.vx[a * q:b * q]))))
     if not out:
         raise InputError("no run has a constant-speed stretch to fit the dynamics to ("
                          + "; ".join(reasons) + "). Drive random steer or a lane change at constant "

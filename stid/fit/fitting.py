@@ -26,6 +26,14 @@ METHODS = ("auto", "steady", "freq", "freq-study", "time", "two-step")
 def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynamic: str = "time"):
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if model_name.split("+")[0].strip() == "greybox":
+        if "+" in model_name:
+            raise InputError("the grey-box model takes no effects; use bicycle+effect for those")
+        if method not in ("auto", "time"):
+            raise InputError("the grey-box model is fitted in the time domain only (--method time)")
+        from stid.fit.greybox_fit import fit_greybox
+
+        return fit_greybox(runs, vehicle)
     model = Model(model_name, vehicle)
     if method == "auto":
         method = _choose(runs)

@@ -11,7 +11,7 @@ from stid.models.bicycle import BASE_PARAMS, bicycle
 from stid.models.effect import Context, get_effect
 from stid.models.params import Param
 
-BASES = ("bicycle",)
+BASES = ("bicycle",)  # "greybox" (study 2) is fitted by stid.fit.greybox_fit
 MEASURED = ("ay", "r")
 _STAGE_ORDER = {"input": 0, "tyre": 1, "output": 2}
 
