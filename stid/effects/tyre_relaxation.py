@@ -8,9 +8,9 @@ class TyreRelaxation(Effect):
     stage = "tyre"
     params = (
         Param("sigma_f", "m", "front tyre relaxation length", lambda v: 0.15 * (v.a + v.b),
-              lambda v: 1e-3 * (v.a + v.b), lambda v: 3.0 * (v.a + v.b), zero=1e-7),
+              lambda v: 1e-5 * (v.a + v.b), lambda v: 3.0 * (v.a + v.b), zero=1e-7),
         Param("sigma_r", "m", "rear tyre relaxation length", lambda v: 0.15 * (v.a + v.b),
-              lambda v: 1e-3 * (v.a + v.b), lambda v: 3.0 * (v.a + v.b), zero=1e-7),
+              lambda v: 1e-5 * (v.a + v.b), lambda v: 3.0 * (v.a + v.b), zero=1e-7),
     )
     physics = ("A tyre builds its side force over a rolling distance, the relaxation length sigma: "
                "Fy' = (vx/sigma)(C alpha - Fy). The lag sigma/vx is a time at one speed but a distance "

@@ -32,13 +32,16 @@ def simulate(model, p: dict, st: Stretch) -> np.ndarray:
 
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
              discard_s: float = 0.5, multistart: bool | None = None, space: ParamSpace | None = None,
-             method_name: str = "time") -> FitResult:
+             method_name: str = "time", reweight: bool = True, sigma=None) -> FitResult:
     fixed = dict(fixed or {})
     warnings = check_excitation(stretches)
     keeps = [_keep(s, discard_s) for s in stretches]
     ys = [s.y[k] for s, k in zip(stretches, keeps)]
-    sigma = np.std(np.vstack(ys), axis=0)
-    sigma = np.where(sigma > 0, sigma, 1.0)
+    if sigma is None:
+        sigma = np.std(np.vstack(ys), axis=0)
+    else:
+        reweight = False  # the caller fixes the weights (a candidate compared with its base)
+    sigma = np.where(np.asarray(sigma) > 0, sigma, 1.0)
 
     def residual(p, sig):
         out = []
@@ -67,11 +70,12 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     res = least_squares(lambda p: residual(p, sigma), space, starts)
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once
-    r_now = residual(p_hat, np.ones(2)).reshape(-1, 2)
-    sigma = np.std(r_now, axis=0)
-    sigma = np.where(sigma > 0, sigma, 1.0)
-    res = least_squares(lambda p: residual(p, sigma), space, [p_hat])
-    p_hat = space.to_p(res.x)
+    if reweight:
+        r_now = residual(p_hat, np.ones(2)).reshape(-1, 2)
+        sigma = np.std(r_now, axis=0)
+        sigma = np.where(sigma > 0, sigma, 1.0)
+        res = least_squares(lambda p: residual(p, sigma), space, [p_hat])
+        p_hat = space.to_p(res.x)
 
     n_free = len(space.free)
     J_blocks, r_blocks = [], []
@@ -87,6 +91,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     preds = [Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k)
              for st, k in zip(stretches, keeps)]
     result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
+    result.extra["sigma"] = np.asarray(sigma, float)
     for w in warnings:
         result.warn(w)
     for n in space.at_bound(res.x):

@@ -1,0 +1,1 @@
+"""Where a model fails: residual analysis, noise floor, comparison by band, |ay| and run."""

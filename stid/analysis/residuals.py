@@ -1,0 +1,85 @@
+"""Residual analysis in the manner of MATLAB's ``resid``: autocorrelation of the
+residuals (are they white?) and their cross-correlation with the input (is
+anything in the steer left unexplained?), each with a 99% band."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+Z99 = 2.576
+
+
+def _xcorr(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation r_ab(k) = E[a(t) b(t-k)] for k = -max_lag..max_lag."""
+    a = a - a.mean()
+    b = b - b.mean()
+    n = len(a)
+    full = signal.correlate(a, b, mode="full", method="fft") / (n * np.std(a) * np.std(b) + 1e-300)
+    mid = n - 1
+    return full[mid - max_lag: mid + max_lag + 1]
+
+
+@dataclass
+class ResidualAnalysis:
+    lags_s: np.ndarray
+    auto: dict  # output -> autocorrelation at lags >= 0
+    cross: dict  # output -> cross-correlation with steer, lags -max..max (positive: residual after steer)
+    band: float  # 99% band for white residuals: 2.576 / sqrt(N)
+    tau_int: dict  # output -> integrated autocorrelation time [samples]
+    n: int
+
+    def white(self, output: str) -> bool:
+        k = len(self.lags_s) // 2
+        return bool(np.mean(np.abs(self.auto[output][1:k]) > self.band) < 0.05)
+
+    def independent(self, output: str) -> bool:
+        return bool(np.mean(np.abs(self.cross[output]) > self.band) < 0.05)
+
+    def peak_lag_s(self, output: str) -> float:
+        c = self.cross[output]
+        return float(self.lags_s[np.argmax(np.abs(c))])
+
+
+def tau_int(e: np.ndarray, max_lag: int) -> float:
+    """Integrated autocorrelation time 1 + 2 sum rho_k, summed until rho first drops below 0.05."""
+    e = e - e.mean()
+    n = len(e)
+    if n < 8 or not np.any(e):
+        return 1.0
+    f = np.fft.rfft(e, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[: max_lag + 1]
+    ac = ac / ac[0]
+    below = np.flatnonzero(ac[1:] < 0.05)
+    k = int(below[0]) + 1 if len(below) else max_lag
+    return float(max(1.0, 1 + 2 * np.sum(ac[1:k])))
+
+
+def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:
+    """Residual statistics over every stretch of a fit (stretches are concatenated per
+    statistic by averaging the correlations, weighted by length)."""
+    dt = float(predictions[0].t[1] - predictions[0].t[0])
+    L = max(2, int(max_lag_s / dt))
+    outs = ("ay", "r")
+    auto = {o: np.zeros(L + 1) for o in outs}
+    cross = {o: np.zeros(2 * L + 1) for o in outs}
+    taus = {o: 0.0 for o in outs}
+    n_tot = 0
+    for p in predictions:
+        k = p.keep
+        e = (p.y - p.yhat)[k]
+        u = p.steer[k]
+        n = len(u)
+        if n <= 2 * L:
+            continue
+        for i, o in enumerate(outs):
+            auto[o] += n * _xcorr(e[:, i], e[:, i], L)[L:]
+            cross[o] += n * _xcorr(e[:, i], u, L)
+            taus[o] += n * tau_int(e[:, i], L)
+        n_tot += n
+    n_tot = max(n_tot, 1)
+    return ResidualAnalysis(lags_s=np.arange(-L, L + 1) * dt, auto={o: v / n_tot for o, v in auto.items()},
+                            cross={o: v / n_tot for o, v in cross.items()}, band=Z99 / np.sqrt(n_tot),
+                            tau_int={o: v / n_tot for o, v in taus.items()}, n=n_tot)

@@ -1,0 +1,301 @@
+"""Name the physical effect the model is missing.
+
+For the current model M and each effect E of the catalogue not in it, fit M+E
+and ask three questions:
+
+1. Is the improvement more than chance? A likelihood-ratio test. Output-error
+   residuals are coloured (the missing physics is filtered by the car), so the
+   sample count is replaced by an effective one, N / tau, with tau the integrated
+   autocorrelation time of M's residuals; the level is 1% with a Bonferroni
+   correction over the candidates.
+2. Does it matter? The effect must close at least a quarter of the gap between
+   M's fit and the noise floor (the best any linear model can do on this data) and
+   gain at least 0.5 fit points. A model already at the noise floor is missing
+   nothing this data can show.
+3. Is it this effect and not a look-alike? Candidates whose gains are within 20%
+   of each other and whose residual signatures are known to coincide are
+   reported as not separable, with the run that would separate them.
+
+Candidates are ranked by the likelihood-ratio statistic. ``peel`` repeats the
+round with the winner added until nothing significant remains.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from stid.analysis.noise_floor import noise_floor
+from stid.analysis.residuals import analyse
+from stid.fit import dataset
+from stid.fit.time_fit import fit_time
+from stid.models.effect import available_effects
+from stid.models.model import Model, parse_model_name
+
+ALPHA = 0.01
+DIAGNOSIS_FS = 50.0  # Hz: the data are prefiltered at 20 Hz; 50 Hz keeps it all at a quarter of the cost
+MIN_GAIN = 0.5  # fit points
+GAP_FRACTION = 0.25
+OUTS = ("ay", "r")
+WORKERS = min(2, os.cpu_count() or 1)
+# effects defined in the user's own modules (a test file, a notebook) may not be importable in a
+# worker process: those rounds run in this process
+_BUILTIN_MODULES = {f"stid.effects.{m}" for m in ("accel_offset", "actuator_lag", "body_roll", "sensor_bias",
+                                                   "tyre_relaxation", "tyre_saturation")}
+
+
+@dataclass
+class Candidate:
+    effect: str
+    result: object = None
+    lr: float = 0.0
+    p_value: float = 1.0
+    gain: dict = field(default_factory=dict)
+    delta_bic: float = 0.0
+    significant: bool = False
+    why_not: str = ""
+    explanation: str = ""
+    separable_from: dict = field(default_factory=dict)  # other effect -> advice
+    skipped: str = ""
+
+    def to_json(self) -> dict:
+        out = {"effect": self.effect, "significant": self.significant}
+        if self.skipped:
+            out["skipped"] = self.skipped
+            return out
+        res = self.result
+        out.update({"fit": {k: round(v, 2) for k, v in res.fit.items()}, "delta_bic": round(self.delta_bic, 1),
+                    "lr": round(self.lr, 1), "p_value": float(f"{self.p_value:.3g}"),
+                    "params": {n: float(v) for n, v in res.params().items() if res.owners.get(n) == self.effect},
+                    "explanation": self.explanation})
+        if not self.significant:
+            out["why_not"] = self.why_not
+        if self.separable_from:
+            out["not_separable_from"] = self.separable_from
+        return out
+
+
+@dataclass
+class Diagnosis:
+    model: str
+    base: object
+    floor: dict
+    tau: dict
+    n_eff: float
+    candidates: list
+    breakdown: object = None
+
+    @property
+    def best(self):
+        sig = [c for c in self.candidates if c.significant]
+        return sig[0] if sig else None
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "fit": {k: round(v, 2) for k, v in self.base.fit.items()},
+                "noise_floor": {k: round(v, 2) for k, v in self.floor.items()},
+                "effective_samples": round(self.n_eff),
+                "candidates": [c.to_json() for c in self.candidates]}
+
+
+def _lr(base, res, n_eff):
+    """LR statistic with the effective sample size, outputs treated as independent."""
+    s = 0.0
+    for pb, pr in ((base, res),):
+        yb = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in pb.predictions])
+        yr = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in pr.predictions])
+        for i in range(2):
+            s += math.log(np.mean(yb[:, i] ** 2) / max(np.mean(yr[:, i] ** 2), 1e-300))
+    return n_eff * s
+
+
+def screen_out(effect_cls, stretches) -> str:
+    """Why a candidate cannot be judged on this data (empty: it can)."""
+    if effect_cls.name == "tyre_saturation":
+        peak = max(np.max(np.abs(s.ay)) for s in stretches)
+        if peak < 3.0:
+            return (f"lateral acceleration never exceeds {peak:.1f} m/s^2 (0.3 g): the friction limit is "
+                    "out of reach of this data; drive closer to the limit to test it")
+    return ""
+
+
+def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, base=None,
+                   stretches=None) -> Diagnosis:
+    stretches = stretches or dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
+    base_name, present = parse_model_name(model_name)
+    model = Model(model_name, vehicle)
+    if progress:
+        progress.step(f"fitting {model_name}")
+    base = base or fit_time(model, stretches)
+    ra = analyse(base.predictions)
+    tau = max(ra.tau_int.values())
+    n_eff = ra.n / tau
+    floor = noise_floor(stretches)
+    cands = []
+    names = [n for n in available_effects() if n not in present]
+    for name in names:
+        cls = available_effects()[name]
+        c = Candidate(name)
+        c.skipped = screen_out(cls, stretches)
+        if c.skipped:
+            cands.append(c)
+            continue
+        if progress:
+            progress.step(f"trying +{name}")
+        cands.append(c)
+    todo = [c for c in cands if not c.skipped]
+    results = _fit_candidates(model_name, [c.effect for c in todo], vehicle, stretches, base.all_params(),
+                              base.extra.get("sigma"), progress)
+    for c, res in zip(todo, results):
+        c.result = res
+        k = len(available_effects()[c.effect].params)
+        c.lr = max(_lr(base, res, n_eff), 0.0)
+        c.p_value = float(stats.chi2.sf(c.lr, k))
+        c.gain = {o: res.fit[o] - base.fit[o] for o in OUTS}
+        c.delta_bic = float(k * math.log(n_eff) - c.lr)
+    tested = [c for c in cands if not c.skipped]
+    level = ALPHA / max(len(tested), 1)
+    gap = {o: max(floor[o] - base.fit[o], 0.0) for o in OUTS}
+    for c in tested:
+        # it must gain at least MIN_GAIN points, and a quarter of the gap to the noise floor
+        # where there is one (a nonlinear effect can beat the linear floor: then MIN_GAIN decides)
+        need = {o: max(MIN_GAIN, GAP_FRACTION * gap[o]) for o in OUTS}
+        enough = [o for o in OUTS if c.gain[o] >= need[o]]
+        best_gain = max(c.gain.values())
+        if c.p_value >= level:
+            c.why_not = f"not more than chance (p = {c.p_value:.2g} >= {level:.2g})"
+        elif best_gain < MIN_GAIN:
+            c.why_not = f"gains only {best_gain:.2f} fit points"
+        elif not enough:
+            c.why_not = (f"closes less than {100 * GAP_FRACTION:.0f}% of the gap to the noise floor "
+                         f"(gains {', '.join(f'{o} {c.gain[o]:.2f}' for o in OUTS)})")
+        else:
+            c.significant = True
+    tested.sort(key=lambda c: (not c.significant, -c.lr))
+    _confusions(tested, runs)
+    for c in tested:
+        c.explanation = explain(c, base, stretches)
+    ordered = tested + [c for c in cands if c.skipped]
+    return Diagnosis(model_name, base, floor, ra.tau_int, n_eff, ordered)
+
+
+def _fit_one(args):
+    model_name, effect, vehicle, stretches, init, sigma = args
+    m2 = Model(f"{model_name}+{effect}", vehicle)
+    init = dict(init)
+    # start where the candidate equals the base model (its effect at zero) or at the effect's
+    # default, whichever fits better: a candidate must never end worse than its base
+    cls = available_effects()[effect]
+    at_zero = {p.name: (p.zero if p.zero is not None else p.value("init", vehicle)) for p in cls.params}
+    for p in cls.params:  # log parameters cannot sit at 0: just above it, inside the bounds
+        lo, hi = m2.bounds(p.name)
+        at_zero[p.name] = min(max(at_zero[p.name], lo * 1.5 if p.log else lo), hi)
+    default = {p.name: p.value("init", vehicle) for p in cls.params}
+    best = min((dict(init, **at_zero), dict(init, **default)),
+               key=lambda q: _cost(m2, stretches, q, sigma))
+    return fit_time(m2, stretches, init=best, multistart=False, sigma=sigma)
+
+
+def _cost(model, stretches, p, sigma, discard_s=0.5):
+    c = 0.0
+    for st in stretches:
+        k = (st.t - st.t[0]) >= discard_s
+        c += float(np.sum(((model.simulate(p, st.steer, st.dt, st.vx)[k] - st.y[k]) / sigma) ** 2))
+    return c
+
+
+def _fit_candidates(model_name, effects, vehicle, stretches, init, sigma, progress=None):
+    """Fit every candidate with the base's output weights, from the base's parameters, on
+    both cores when there are several (each fit is independent)."""
+    jobs = [(model_name, e, vehicle, stretches, init, sigma) for e in effects]
+    custom = [e for e in effects if available_effects()[e].__module__ not in _BUILTIN_MODULES]
+    if len(jobs) < 3 or custom or WORKERS < 2:
+        out = []
+        for j in jobs:
+            if progress:
+                progress.step(f"trying +{j[1]}")
+            out.append(_fit_one(j))
+        return out
+    from concurrent.futures import ProcessPoolExecutor
+
+    if progress:
+        progress.step(f"trying {len(jobs)} effects on {WORKERS} cores")
+    with ProcessPoolExecutor(max_workers=WORKERS) as ex:
+        return list(ex.map(_fit_one, jobs))
+
+
+def _confusions(tested, runs) -> None:
+    sig = [c for c in tested if c.significant]
+    if not sig:
+        return
+    top = sig[0]
+    g_top = sum(top.gain.values())
+    for c in sig[1:]:
+        g = sum(c.gain.values())
+        if g >= 0.8 * g_top:
+            cls_top = available_effects()[top.effect]
+            cls_c = available_effects()[c.effect]
+            advice = cls_top.confused_with.get(c.effect) or cls_c.confused_with.get(top.effect)
+            if advice:
+                top.separable_from[c.effect] = advice
+                c.separable_from[top.effect] = advice
+
+
+def explain(c: Candidate, base, stretches) -> str:
+    """One or two sentences with the numbers a vehicle engineer would check."""
+    res = c.result
+    p = res.params()
+    speeds = sorted({round(s.vx, 1) for s in stretches})
+    sp = ", ".join(f"{v:g}" for v in speeds) + " m/s"
+    gain = ", ".join(f"{o} {base.fit[o]:.1f}% -> {res.fit[o]:.1f}%" for o in OUTS)
+    cls = available_effects()[c.effect]
+    if c.effect == "actuator_lag":
+        lead = (f"yaw-rate and lateral-acceleration residuals follow the steer by ~{1000 * p['tau_steer']:.0f} ms "
+                f"at every speed ({sp}): steering servo lag, tau = {1000 * p['tau_steer']:.0f} ms")
+    elif c.effect == "tyre_relaxation":
+        lags = ", ".join(f"{1000 * p['sigma_f'] / v:.0f} ms at {v:g} m/s" for v in speeds)
+        lead = (f"the response lags more at low speed ({lags} at the front axle): tyre relaxation, "
+                f"sigma_f = {p['sigma_f']:.3f} m, sigma_r = {p['sigma_r']:.3f} m")
+    elif c.effect == "accel_offset":
+        lead = (f"only the ay residual has structure, and it follows the yaw acceleration: the accelerometer "
+                f"sits {100 * p['x_acc']:+.1f} cm {'ahead of' if p['x_acc'] > 0 else 'behind'} the CG")
+    elif c.effect == "body_roll":
+        lead = (f"ay reads {100 * 9.81 * p['roll_gain']:.1f}% high in steady cornering with a resonance near "
+                f"{p['roll_freq']:.1f} Hz; yaw rate fits: the body rolls "
+                f"{math.degrees(p['roll_gain']) * 9.81:.1f} deg/g and tilts the accelerometer")
+    elif c.effect == "tyre_saturation":
+        lead = (f"the fit is good at low |ay| and fails toward the peaks: the tyres saturate, mu = {p['mu']:.2f} "
+                f"(friction limit {9.81 * p['mu']:.1f} m/s^2)")
+    elif c.effect == "sensor_bias":
+        lead = (f"the residuals have a constant part unrelated to steer: gyro offset "
+                f"{math.degrees(p['bias_r']):+.2f} deg/s, accelerometer offset {p['bias_ay']:+.3f} m/s^2 "
+                "left after calibration")
+    else:
+        ps = ", ".join(f"{n} = {v:.4g} {res.units.get(n, '')}" for n, v in p.items() if res.owners.get(n) == c.effect)
+        lead = f"{cls.signature}: {c.effect} ({ps})" if cls.signature else f"{c.effect} ({ps})"
+    text = f"{lead}. Adding it: {gain}."
+    if c.separable_from:
+        other, advice = next(iter(c.separable_from.items()))
+        text += f" Cannot be told apart from {other} on this data: {advice}."
+    return text
+
+
+def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max_steps: int = 4,
+             progress=None) -> list[Diagnosis]:
+    """One round, or (peel) rounds adding the winner until nothing significant remains."""
+    stretches = dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
+    rounds = []
+    name = model_name
+    base = None
+    for _ in range(max_steps if peel else 1):
+        d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches)
+        rounds.append(d)
+        best = d.best
+        if best is None or best.separable_from:
+            break
+        name = f"{name}+{best.effect}"
+        base = best.result
+    return rounds
