@@ -11,8 +11,6 @@ from host.errors import HostError
 from stid.errors import StidError
 
 NOT_YET = {
-    "compare": "compare models against measurements",
-    "diagnose": "name the physical effect the model is missing",
     "report": "write an HTML report",
     "plan": "design a test from the Cramér-Rao bound",
     "batch": "fit many runs in parallel",
@@ -55,6 +53,52 @@ def _print_load_warnings(runs) -> None:
     for r in runs:
         for w in r.meta.get("warnings", []):
             print(f"warning: {r.name}: {w}", file=sys.stderr)
+
+
+def _cmd_diagnose(args) -> int:
+    import json
+
+    from stid.diagnose import diagnose
+    from stid.load import load_runs
+    from stid.present import diagnosis_text
+    from stid.progress import Progress
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    runs = load_runs(args.runs, vehicle)
+    _print_load_warnings(runs)
+    with Progress("diagnosing") as prog:
+        rounds = diagnose(runs, vehicle, args.model, peel=args.peel, progress=prog)
+    if args.json:
+        doc = rounds[0].to_json()
+        if args.peel:
+            doc["steps"] = [d.to_json() for d in rounds]
+        print(json.dumps(doc, indent=1))
+    else:
+        print(diagnosis_text(rounds))
+    return 0
+
+
+def _cmd_compare(args) -> int:
+    import json
+
+    from stid.compare import compare
+    from stid.load import load_runs
+    from stid.present import comparison_text
+    from stid.progress import Progress
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    runs = load_runs(args.runs, vehicle)
+    _print_load_warnings(runs)
+    with Progress("comparing") as prog:
+        entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog)
+    if args.json:
+        print(json.dumps({"models": [{k: v for k, v in e.items() if not k.startswith("_")} for e in entries]},
+                         indent=1))
+    else:
+        print(comparison_text(entries))
+    return 0
 
 
 def _cmd_calibrate(args) -> int:
@@ -103,6 +147,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="auto: two-step when there are steady circles and a constant-speed stretch")
     p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
     p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser("diagnose", help="name the physical effect the model is missing")
+    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
+    p.add_argument("--model", default="bicycle", help="the model to diagnose (default bicycle)")
+    p.add_argument("--peel", action="store_true", help="add the winner and diagnose again until nothing is missing")
+    p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
+    p.set_defaults(func=_cmd_diagnose)
+
+    p = sub.add_parser("compare", help="compare models: fit, AIC/BIC, where the error lives, residual analysis")
+    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
+    p.add_argument("--model", action="append", help="a model to compare (repeat the option)")
+    p.add_argument("--method", default="time", choices=["time", "freq"], help="how each model is fitted")
+    p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
+    p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
     p.add_argument("standstill", help="STANDSTILL.mcap: the car at rest on level ground, engine off")

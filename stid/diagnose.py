@@ -252,9 +252,10 @@ def explain(c: Candidate, base, stretches) -> str:
     sp = ", ".join(f"{v:g}" for v in speeds) + " m/s"
     gain = ", ".join(f"{o} {base.fit[o]:.1f}% -> {res.fit[o]:.1f}%" for o in OUTS)
     cls = available_effects()[c.effect]
+    at = f"at every speed ({sp})" if len(speeds) > 1 else f"at {sp} (one speed only)"
     if c.effect == "actuator_lag":
         lead = (f"yaw-rate and lateral-acceleration residuals follow the steer by ~{1000 * p['tau_steer']:.0f} ms "
-                f"at every speed ({sp}): steering servo lag, tau = {1000 * p['tau_steer']:.0f} ms")
+                f"{at}: steering servo lag, tau = {1000 * p['tau_steer']:.0f} ms")
     elif c.effect == "tyre_relaxation":
         lags = ", ".join(f"{1000 * p['sigma_f'] / v:.0f} ms at {v:g} m/s" for v in speeds)
         lead = (f"the response lags more at low speed ({lags} at the front axle): tyre relaxation, "

@@ -30,13 +30,15 @@ class ResidualAnalysis:
     band: float  # 99% band for white residuals: 2.576 / sqrt(N)
     tau_int: dict  # output -> integrated autocorrelation time [samples]
     n: int
+    cross_band: dict = None  # output -> 99% band of the cross-correlation (Bartlett, coloured series)
 
     def white(self, output: str) -> bool:
         k = len(self.lags_s) // 2
         return bool(np.mean(np.abs(self.auto[output][1:k]) > self.band) < 0.05)
 
     def independent(self, output: str) -> bool:
-        return bool(np.mean(np.abs(self.cross[output]) > self.band) < 0.05)
+        band = self.cross_band[output] if self.cross_band else self.band
+        return bool(np.mean(np.abs(self.cross[output]) > band) < 0.05)
 
     def peak_lag_s(self, output: str) -> float:
         c = self.cross[output]
@@ -66,6 +68,7 @@ def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:
     auto = {o: np.zeros(L + 1) for o in outs}
     cross = {o: np.zeros(2 * L + 1) for o in outs}
     taus = {o: 0.0 for o in outs}
+    bart = {o: 0.0 for o in outs}
     n_tot = 0
     for p in predictions:
         k = p.keep
@@ -78,8 +81,13 @@ def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:
             auto[o] += n * _xcorr(e[:, i], e[:, i], L)[L:]
             cross[o] += n * _xcorr(e[:, i], u, L)
             taus[o] += n * tau_int(e[:, i], L)
+            # Bartlett: var r_eu(k) ~ (1/N) sum_j rho_ee(j) rho_uu(j) for independent coloured series
+            ree = _xcorr(e[:, i], e[:, i], L)
+            ruu = _xcorr(u, u, L)
+            bart[o] += n * float(np.sum(ree * ruu))
         n_tot += n
     n_tot = max(n_tot, 1)
     return ResidualAnalysis(lags_s=np.arange(-L, L + 1) * dt, auto={o: v / n_tot for o, v in auto.items()},
                             cross={o: v / n_tot for o, v in cross.items()}, band=Z99 / np.sqrt(n_tot),
-                            tau_int={o: v / n_tot for o, v in taus.items()}, n=n_tot)
+                            tau_int={o: v / n_tot for o, v in taus.items()}, n=n_tot,
+                            cross_band={o: Z99 * np.sqrt(max(v / n_tot, 1.0) / n_tot) for o, v in bart.items()})
