@@ -38,8 +38,11 @@ def standstill(path, vehicle: Vehicle) -> dict:
     except HostError as e:
         raise InputError(str(e)) from None
     s = log.samples
-    if len(s) < 200 or not log.hello:
-        raise InputError(f"{path}: too short for a stand-still calibration (need ≥ 2 s with a HELLO)")
+    if not log.hello:
+        raise InputError(f"{path} holds no HELLO frame, so the ADC scale is unknown: log the stand-still "
+                         "for a few seconds longer (the firmware repeats HELLO every 2 s)")
+    if len(s) < 200:
+        raise InputError(f"{path}: {len(s)} samples are too few for a stand-still calibration (need ≥ 200)")
     hello = log.hello
     acc = {k: units.accel_si(s[k], hello) for k in ("ax", "ay", "az")}
     moving = np.diff(s["wheel_count"].astype(np.int64)) != 0

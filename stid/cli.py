@@ -11,7 +11,6 @@ from host.errors import HostError
 from stid.errors import StidError
 
 NOT_YET = {
-    "report": "write an HTML report",
     "plan": "design a test from the Cramér-Rao bound",
     "batch": "fit many runs in parallel",
 }
@@ -101,6 +100,21 @@ def _cmd_compare(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    from stid.load import load_runs
+    from stid.progress import Progress
+    from stid.report import write_report
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    runs = load_runs(args.runs, vehicle)
+    _print_load_warnings(runs)
+    with Progress("writing the report") as prog:
+        path = write_report(runs, vehicle, args.output, args.model, progress=prog)
+    print(path)
+    return 0
+
+
 def _cmd_calibrate(args) -> int:
     from stid.calibrate import calibrate_cli
 
@@ -163,6 +177,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="time", choices=["time", "freq"], help="how each model is fitted")
     p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
     p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser("report", help="self-contained HTML report: fits, diagnosis, figures, the error falling")
+    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for report.html")
+    p.add_argument("--model", default="bicycle", help="the starting model (default bicycle)")
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
     p.add_argument("standstill", help="STANDSTILL.mcap: the car at rest on level ground, engine off")

@@ -122,7 +122,7 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
         raise InputError(f"{path} holds {len(s)} samples: too few to use (was the logger connected to the car?)")
     if not log.hello:
         raise InputError(f"{path} has samples but no HELLO frame, so the ADC scale is unknown; "
-                         "log for at least 5 s (the firmware repeats HELLO every 5 s)")
+                         "log for a few seconds longer (the firmware repeats HELLO every 2 s)")
     runs = []
     for k, (a, b) in enumerate(_pieces(s)):
         piece = s[a:b]

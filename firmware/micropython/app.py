@@ -33,7 +33,7 @@ def _boot_id():
 
 class App:
     def __init__(self, board="pico", rate_hz=500, batch=10, ring_size=256, out=None,
-                 hello_period_s=5, extra_hello=None):
+                 hello_period_s=2, extra_hello=None):
         if not 1 <= batch <= 40:
             raise ValueError("batch must be 1..40 samples per frame")
         if not 10 <= rate_hz <= 5000:

@@ -1,0 +1,24 @@
+"""stid report: one self-contained HTML page with the chain, the figures and the diagnosis."""
+
+import base64
+import re
+import subprocess
+
+from conftest import REPO, tool
+from simdata import random_steer_pair
+
+
+def test_report_is_self_contained_and_tells_the_story(simdir, tmp_path):
+    paths = random_steer_pair(simdir, ("actuator_lag", "accel_offset"))
+    r = subprocess.run([tool("stid"), "report", *map(str, paths), "--vehicle",
+                        str(REPO / "docs" / "examples" / "rc8.toml"), "-o", str(tmp_path / "rep")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert r.stdout.strip().endswith("report.html")
+    images = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", page)
+    assert len(images) >= 5
+    assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
+    assert "src='http" not in page and 'src="http' not in page  # nothing fetched from outside
+    for text in ("bicycle+actuator_lag", "accel_offset", "N/rad", "noise floor", "The error falls"):
+        assert text in page, text
