@@ -54,22 +54,30 @@ def _lowpass(x, fc, fs):
     return signal.lfilter(b, a, x - x[0]) + x[0]
 
 
-def body_signals(traj: Trajectory, car: CarParams, effects: Effects, t_start_bias: float):
-    """Specific force and yaw rate the sensors see, before sensor imperfections."""
-    ax = traj.ax.copy()
-    ay = traj.ay.copy()
-    r = traj.r.copy()
+def body_signals(traj: Trajectory, car: CarParams, effects: Effects, t_start_bias: float, tg=None):
+    """Specific force and yaw rate the sensors see, before sensor imperfections, on the
+    integration grid or (tg) on a finer grid."""
+    if tg is None:
+        t = traj.t
+        sig = {"ax": traj.ax, "ay": traj.ay, "r": traj.r, "r_dot": traj.r_dot, "phi": traj.phi}
+    else:
+        t = tg
+        sig = traj.dense(tg)
+    ax = sig["ax"].copy()
+    ay = sig["ay"].copy()
+    r = sig["r"].copy()
     az = np.full_like(ax, G)
     if "accel_offset" in effects:
-        ay = ay + car.x_acc * traj.r_dot
-        ax = ax - car.x_acc * traj.r ** 2
+        ay = ay + car.x_acc * sig["r_dot"]
+        ax = ax - car.x_acc * r ** 2
     if "body_roll" in effects:
-        ay = ay * np.cos(traj.phi) + G * np.sin(traj.phi)
-        az = az * np.cos(traj.phi) - traj.ay * np.sin(traj.phi)
+        ay0 = ay.copy()
+        ay = ay * np.cos(sig["phi"]) + G * np.sin(sig["phi"])
+        az = az * np.cos(sig["phi"]) - ay0 * np.sin(sig["phi"])
     if "sensor_bias" in effects:
         # thermal offset that drifts in after the still phase: a stand-still
         # calibration at the start of the run does not remove it
-        ramp = np.clip((traj.t - t_start_bias) / car.bias_ramp_s, 0, 1)
+        ramp = np.clip((t - t_start_bias) / car.bias_ramp_s, 0, 1)
         r = r + car.bias_r * ramp
         ay = ay + car.bias_ay * ramp
     return ax, ay, az, r
@@ -81,10 +89,9 @@ def pin_voltages(traj: Trajectory, car: CarParams, effects: Effects, sens: Senso
 
     Returns (t_grid, dict name -> volts) with names ax, ay, az, yaw, vbat.
     """
-    ax, ay, az, r = body_signals(traj, car, effects, t_start_bias)
     tg = np.arange(int(traj.t[-1] * fs_sig) + 1) / fs_sig
-    interp = lambda x: np.interp(tg, traj.t, x)  # noqa: E731
-    ax, ay, az, r, vx = map(interp, (ax, ay, az, r, traj.vx))
+    ax, ay, az, r = body_signals(traj, car, effects, t_start_bias, tg)
+    vx = np.interp(tg, traj.t, traj.vx)
     n = len(tg)
     if "vibration" in effects:
         moving = np.clip(vx / 4.0, 0, 2)

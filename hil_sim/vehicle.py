@@ -111,6 +111,31 @@ class Trajectory:
     psi: np.ndarray
     steer_pulses_us: np.ndarray  # one servo pulse width per servo period
     Fx: np.ndarray  # N, drive force at the rear axle
+    states: np.ndarray | None = None  # (n, 13) raw states, for dense output
+    rhs: object = None  # the right-hand side, for dense output
+
+    def dense(self, tg: np.ndarray) -> dict:
+        """Outputs between integration steps. Within a step the servo command is held, so
+        each output is interpolated between its value at the step's start and its value at
+        the step's end under the same command (re-evaluated where the command changes
+        there). Plain interpolation of the outputs would ramp every steer step in up to a
+        step early, through ay's direct dependence on the steer."""
+        n = len(self.t)
+        left = {"ay": self.ay, "ax": self.ax, "r_dot": self.r_dot}
+        right = {k: np.append(v[1:], v[-1]).copy() for k, v in left.items()}
+        changed = np.flatnonzero(self.delta_cmd[1:] != self.delta_cmd[:-1])  # steps i -> i+1
+        for i in changed:
+            x = list(self.states[i + 1])
+            d, aux = self.rhs(x, float(self.delta_cmd[i]), float(self.v_ref[i]))
+            right["ax"][i] = aux[3] - x[4] * x[5]
+            right["ay"][i] = aux[4] + x[3] * x[5]
+            right["r_dot"][i] = aux[5]
+        idx = np.clip(np.searchsorted(self.t, tg, side="right") - 1, 0, n - 1)
+        frac = np.clip((tg - self.t[idx]) / np.maximum(np.diff(self.t, append=self.t[-1] + 1)[idx], 1e-12), 0, 1)
+        out = {k: left[k][idx] + (right[k][idx] - left[k][idx]) * frac for k in left}
+        for k, v in (("r", self.r), ("vx", self.vx), ("phi", self.phi)):
+            out[k] = np.interp(tg, self.t, v)
+        return out
 
 
 def wheel_speeds(traj: "Trajectory", car: "CarParams"):
@@ -207,15 +232,21 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     k_next = 0
     dc = 0.0
     state = [0.0] * 13
+    pending = None  # (apply time [s], command [rad]) of the pulse in flight
     for i in range(n):
-        # the servo takes a new command at the end of each pulse
-        while k_next < n_pulses and t[i] >= car.servo_phase_us * 1e-6 + k_next * period + 0.0015:
+        # the width of pulse k is set when it starts; the servo takes it at the pulse's end
+        # (the falling edge, where the firmware measures it): applied at the nearest step
+        while k_next < n_pulses and t[i] >= car.servo_phase_us * 1e-6 + k_next * period:
             want = driver(state[0], state[1], state[2], state[3]) if driver else float(steer_plan[i])
             us = int(round(car.steer_center_us + want * car.steer_us_per_rad))
             us = max(900, min(2100, us))
             pulses[k_next] = us
-            dc = (us - car.steer_center_us) / car.steer_us_per_rad
+            pending = (car.servo_phase_us * 1e-6 + k_next * period + us * 1e-6,
+                       (us - car.steer_center_us) / car.steer_us_per_rad)
             k_next += 1
+        if pending is not None and t[i] >= pending[0] - 0.5 * dt:
+            dc = pending[1]
+            pending = None
         if i == 0:
             state[6] = dc
         delta_cmd[i] = dc
@@ -237,6 +268,8 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     X, Y, psi, vx, vy, r = (out[:, k] for k in range(6))
     dvx, dvy, dr = aux[:, 3], aux[:, 4], aux[:, 5]
     pulses[k_next:] = pulses[k_next - 1] if k_next else int(car.steer_center_us)
-    return Trajectory(t=t, delta_cmd=delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
-                      r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
-                      x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6])
+    tr = Trajectory(t=t, delta_cmd=delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
+                    r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
+                    x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6], states=out, rhs=rhs)
+    tr.v_ref = np.asarray(v_ref, float)
+    return tr

@@ -89,7 +89,13 @@ def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: 
         raise InputError("no run has a constant-speed stretch to fit the dynamics to ("
                          + "; ".join(reasons) + "). Drive random steer or a lane change at constant "
                          "speed, or use --method steady for steady-state circles")
-    return out
+    # a stretch of constant steer (a steady circle) holds no dynamic information, only model error
+    moving = [s for s in out if np.std(s.steer) >= np.radians(0.1)]
+    if not moving:
+        raise InputError("the steer is (nearly) constant in every constant-speed stretch: it does not excite "
+                         "the dynamics, so no dynamic parameter can be identified. Drive random steer "
+                         "(1-4 deg) or a lane change")
+    return moving
 
 
 def check_excitation(stretches: list[Stretch]) -> list[str]:

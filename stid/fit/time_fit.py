@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import signal
 
 from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.result import FitResult, Prediction, fit_percent
@@ -32,7 +33,8 @@ def simulate(model, p: dict, st: Stretch) -> np.ndarray:
 
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
              discard_s: float = 0.5, multistart: bool | None = None, space: ParamSpace | None = None,
-             method_name: str = "time", reweight: bool = True, sigma=None) -> FitResult:
+             method_name: str = "time", reweight: bool = True, sigma=None,
+             whiten: bool = False) -> FitResult:
     fixed = dict(fixed or {})
     warnings = check_excitation(stretches)
     keeps = [_keep(s, discard_s) for s in stretches]
@@ -76,6 +78,26 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         sigma = np.where(sigma > 0, sigma, 1.0)
         res = least_squares(lambda p: residual(p, sigma), space, [p_hat])
         p_hat = space.to_p(res.x)
+    if whiten:
+        # prediction-error refinement: an AR model of each output's residual colour, then
+        # the residuals (and so the Jacobian) are whitened by its inverse: maximum
+        # likelihood for Gaussian coloured noise, hence efficient
+        ar = _ar_models([simulate(model, p_hat, st)[k] - y for st, k, y in zip(stretches, keeps, ys)])
+
+        def white_residual(p):
+            out = []
+            for st, k, y in zip(stretches, keeps, ys):
+                e = simulate(model, p, st)[k] - y
+                out.append(np.column_stack([signal.lfilter(ar[j][0], [1.0], e[:, j]) / ar[j][1]
+                                            for j in range(2)])[AR_ORDER:].ravel())
+            return np.concatenate(out)
+
+        res = least_squares(white_residual, space, [p_hat])
+        p_hat = space.to_p(res.x)
+        keeps = [k.copy() for k in keeps]
+        for k in keeps:  # the first AR_ORDER kept samples only warm the whitening filter up
+            idx = np.flatnonzero(k)[:AR_ORDER]
+            k[idx] = False
 
     n_free = len(space.free)
     J_blocks, r_blocks = [], []
@@ -99,6 +121,26 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                     "outside the plausible range, or the model lacks an effect")
     checks.add_identifiability_warnings(result, model, stretches)
     return result
+
+
+AR_ORDER = 12
+
+
+def _ar_models(residual_blocks, order: int = AR_ORDER):
+    """Per output: (whitening filter a, innovation std) of an AR model by Yule-Walker."""
+    from scipy.linalg import solve_toeplitz
+
+    out = []
+    for j in range(2):
+        e = np.concatenate([b[:, j] - b[:, j].mean() for b in residual_blocks])
+        n = len(e)
+        f = np.fft.rfft(e, 2 * n)
+        ac = np.fft.irfft(f * np.conj(f))[: order + 1] / n
+        phi = solve_toeplitz(ac[:order], ac[1:order + 1])
+        a = np.concatenate([[1.0], -phi])
+        s2 = max(ac[0] - phi @ ac[1:order + 1], 1e-30 * ac[0])
+        out.append((a, float(np.sqrt(s2))))
+    return out
 
 
 def make_result(model, method: str, space: ParamSpace, p_hat: dict, cov: np.ndarray, preds: list,

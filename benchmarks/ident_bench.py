@@ -1,0 +1,129 @@
+"""Identification figures: stid fit time vs the study's method, diagnose wall time,
+scaling with run length and with the number of candidate effects."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.study_method import fit_study
+from hil_sim.manoeuvres import Plan
+from hil_sim.record import record
+from hil_sim.run import SimConfig
+
+REPO = Path(__file__).resolve().parents[1]
+VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
+
+
+def make_runs(d: Path, effects=(), seeds=(1, 2), duration=40.0, steer_amp=0.04) -> list[Path]:
+    paths = []
+    for seed, speed in zip(seeds, (4.0, 6.0)):
+        p = d / f"rs_{'+'.join(effects) or 'clean'}_{seed}_{steer_amp:g}.mcap"
+        if not p.exists():
+            record(SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp),
+                             seed=seed, effects=tuple(effects)), p)
+        paths.append(p)
+    return paths
+
+
+def _best_of(fn, n=3):
+    times = []
+    out = None
+    for _ in range(n):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return min(times), out
+
+
+def fit_times(d: Path, quick: bool) -> dict:
+    from stid.fit import dataset
+    from stid.fit.fitting import fit
+    from stid.fit.frf import estimate_frf
+    from stid.load import load_runs
+    from stid.vehicle_file import load_vehicle
+
+    v = load_vehicle(VEHICLE)
+    paths = make_runs(d)
+    runs = load_runs(paths, v)
+    t_fit, res = _best_of(lambda: fit(runs, v, "bicycle", "time"))
+    t_freq, _ = _best_of(lambda: fit(runs, v, "bicycle", "freq"))
+
+    def study():
+        frfs = [estimate_frf(s) for s in dataset.dynamic_stretches(runs)]
+        return fit_study(frfs, v)
+
+    t_study, (p_study, opt) = _best_of(study)
+    bindir = Path(sys.executable).parent
+
+    def proc(cmd):
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, capture_output=True)
+        return time.perf_counter() - t0
+
+    n = 1 if quick else 3
+    t_cli = min(proc([str(bindir / "stid"), "fit", *map(str, paths), "--vehicle", str(VEHICLE), "--method", "time"])
+                for _ in range(n))
+    t_cli_study = min(proc([sys.executable, "-m", "benchmarks.study_method", *map(str, paths), "--vehicle",
+                            str(VEHICLE)]) for _ in range(n))
+    return {"fit_time_s": t_fit, "fit_freq_s": t_freq, "study_s": t_study, "study_nfev": int(opt.nfev),
+            "cli_fit_s": t_cli, "cli_study_s": t_cli_study, "samples": int(sum(len(r.t) for r in runs)),
+            "stid": res.params(), "study": p_study}
+
+
+def diagnose_time(d: Path, quick: bool) -> dict:
+    from stid.diagnose import diagnose
+    from stid.load import load_runs
+    from stid.vehicle_file import load_vehicle
+
+    v = load_vehicle(VEHICLE)
+    runs = load_runs(make_runs(d, ("actuator_lag",)), v)
+    diagnose(runs, v, "bicycle")  # warm: imports, worker start-up paths
+    t, rounds = _best_of(lambda: diagnose(runs, v, "bicycle"), n=1 if quick else 3)
+    bindir = Path(sys.executable).parent
+    t0 = time.perf_counter()
+    subprocess.run([str(bindir / "stid"), "diagnose", *map(str, make_runs(d, ("actuator_lag",))), "--vehicle",
+                    str(VEHICLE)], check=True, capture_output=True)
+    return {"diagnose_s": t, "cli_diagnose_s": time.perf_counter() - t0, "found": rounds[0].best.effect}
+
+
+def scaling(d: Path, quick: bool) -> dict:
+    """Fit and diagnose time as the data grow (the runs tiled end to end) and as candidates grow."""
+    from stid.diagnose import diagnose
+    from stid.fit.fitting import fit
+    from stid.load import load_runs
+    from stid.models.effect import available_effects
+    from stid.run import Run
+    from stid.vehicle_file import load_vehicle
+    import stid.diagnose as dg
+
+    v = load_vehicle(VEHICLE)
+    base = load_runs(make_runs(d, ("actuator_lag",)), v)
+    out = {"length": [], "candidates": []}
+    for k in ((1, 2) if quick else (1, 4, 16)):
+        runs = []
+        for r in base:
+            n = len(r.t)
+            tile = lambda x: None if x is None else np.tile(x, k)  # noqa: E731
+            runs.append(Run(r.name, np.arange(n * k) * r.dt, tile(r.steer), tile(r.ay), tile(r.r), tile(r.vx),
+                            tile(r.ax), None, {}, dict(r.meta)))
+        t_fit, _ = _best_of(lambda: fit(runs, v, "bicycle", "time"), n=1)
+        t_diag, _ = _best_of(lambda: diagnose(runs, v, "bicycle"), n=1)
+        out["length"].append({"factor": k, "samples": int(sum(len(r.t) for r in runs)), "fit_s": t_fit,
+                              "diagnose_s": t_diag})
+    names = list(available_effects())
+    for m in ((1, len(names)) if quick else (1, 3, len(names))):
+        keep = set(names[:m])
+        saved = dict(dg.available_effects())
+        try:
+            dg.available_effects = lambda: {n: c for n, c in saved.items() if n in keep}  # noqa: E731
+            t, _ = _best_of(lambda: diagnose(base, v, "bicycle"), n=1)
+        finally:
+            dg.available_effects = available_effects
+        out["candidates"].append({"candidates": m, "diagnose_s": t})
+    return out
