@@ -11,7 +11,6 @@ from host.errors import HostError
 from stid.errors import StidError
 
 NOT_YET = {
-    "plan": "design a test from the Cramér-Rao bound",
     "batch": "fit many runs in parallel",
 }
 
@@ -115,6 +114,49 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_plan(args) -> int:
+    import json
+
+    from stid.crlb import noise_psd_from_still
+    from stid.errors import InputError
+    from stid.load import load_runs
+    from stid.models.model import Model
+    from stid.plan import datasheet_noise, parse_manoeuvre, plan_report
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    model = Model(args.model, vehicle)
+    params = model.defaults()
+    for name, spec in vehicle.params.items():
+        if name in params and isinstance(spec, dict) and "init" in spec:
+            params[name] = float(spec["init"])
+    if args.params_from:
+        from stid.fit.fitting import fit
+
+        params.update(fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time").all_params())
+    if not args.manoeuvre:
+        raise InputError("give at least one --manoeuvre, e.g. --manoeuvre speed=4,amp=2deg,bw=4,dur=60")
+    manoeuvres = [parse_manoeuvre(m) for m in args.manoeuvre]
+    if args.noise_from:
+        noise = noise_psd_from_still(load_runs([args.noise_from], vehicle))
+        if noise is None:
+            raise InputError(f"{args.noise_from} never stands still: give a run that starts at rest")
+        source = f"the stand-still of {args.noise_from}"
+    else:
+        noise = datasheet_noise(vehicle=vehicle)
+        source = "datasheets (ADXL335, LISY300AL, 12-bit ADC)"
+    targets = {}
+    for t in args.target or []:
+        try:
+            name, val = t.split("=")
+            targets[name.strip()] = float(val.strip().rstrip("%")) / 100
+        except ValueError:
+            raise InputError(f"--target {t!r}: write NAME=PERCENT, e.g. Iz=5%") from None
+    text, doc = plan_report(model, params, manoeuvres, noise, targets, source)
+    print(json.dumps(doc, indent=1) if args.json else text)
+    return 0
+
+
 def _cmd_calibrate(args) -> int:
     from stid.calibrate import calibrate_cli
 
@@ -184,6 +226,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for report.html")
     p.add_argument("--model", default="bicycle", help="the starting model (default bicycle)")
     p.set_defaults(func=_cmd_report)
+
+    p = sub.add_parser("plan", help="predict parameter uncertainty for planned manoeuvres (Cramér-Rao bound)")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
+    p.add_argument("--model", default="bicycle")
+    p.add_argument("--manoeuvre", action="append", metavar="SPEC",
+                   help="random steer: speed=M/S,amp=DEG deg,bw=HZ,dur=S (repeat for several)")
+    p.add_argument("--noise-from", metavar="RUN", help="noise level from the stand-still part of this run")
+    p.add_argument("--params-from", nargs="+", metavar="RUN", help="parameter values from fitting these runs")
+    p.add_argument("--target", action="append", metavar="NAME=PCT", help="e.g. Iz=5%%: what to add to reach it")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_plan)
 
     p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
     p.add_argument("standstill", help="STANDSTILL.mcap: the car at rest on level ground, engine off")

@@ -1,0 +1,186 @@
+"""``stid plan``: design the test before driving.
+
+For a model, parameter values (defaults, the vehicle file's [params], or a
+previous fit) and a set of proposed manoeuvres, the Cramér-Rao bound (stid.crlb)
+predicts the standard deviation each parameter will have. The steer of each
+manoeuvre enters through its expected spectrum (random steer: band-limited white
+noise of the given rms and bandwidth, as drivers and steering robots produce), the
+noise through its spectrum: the sensors' datasheet noise densities, or measured
+from the stand-still part of a run (``--noise-from``). The bound assumes the model
+is right; unmodelled effects add to the spread (see benchmarks: on the simulated
+car the observed spread is ~2x the sensor-noise bound for Cf and Cr).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import signal
+
+from stid.crlb import fisher
+from stid.errors import InputError
+from stid.fit.dataset import PREFILTER_HZ
+from stid.models.model import Model
+
+G = 9.81
+ANALYSIS_FS = 200.0
+# datasheet noise densities (one-sided): ADXL335 x/y 150 ug/sqrt(Hz), LISY300AL 0.05 deg/s/sqrt(Hz) (assumed)
+ADXL335_NOISE = 150e-6 * G
+LISY300AL_NOISE = math.radians(0.05)
+
+
+@dataclass
+class Manoeuvre:
+    speed: float  # m/s
+    amp: float  # rad, rms road-wheel steer
+    bandwidth: float  # Hz
+    duration: float  # s
+
+    def label(self) -> str:
+        return (f"random steer {math.degrees(self.amp):.1f} deg rms up to {self.bandwidth:g} Hz for "
+                f"{self.duration:g} s at {self.speed:g} m/s")
+
+
+def parse_manoeuvre(text: str) -> Manoeuvre:
+    """``speed=5,amp=2deg,bw=4,dur=60`` (amp in deg or rad; defaults amp 2 deg, bw 4 Hz, dur 40 s)."""
+    kv = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        if "=" not in part:
+            raise InputError(f"manoeuvre {text!r}: write key=value pairs, e.g. speed=5,amp=2deg,bw=4,dur=60")
+        k, v = part.split("=", 1)
+        kv[k.strip()] = v.strip()
+    unknown = set(kv) - {"speed", "amp", "bw", "dur"}
+    if unknown:
+        raise InputError(f"manoeuvre {text!r}: unknown key(s) {', '.join(sorted(unknown))}; "
+                         "use speed, amp, bw, dur")
+    if "speed" not in kv:
+        raise InputError(f"manoeuvre {text!r} needs speed=... [m/s]")
+
+    def num(s, what):
+        m = re.fullmatch(r"([-+0-9.eE]+)\s*(deg|rad|hz|Hz|s|m/s)?", s)
+        if not m:
+            raise InputError(f"manoeuvre {text!r}: {what} {s!r} is not a number")
+        return float(m.group(1)), m.group(2)
+
+    speed, _ = num(kv["speed"], "speed")
+    amp, unit = num(kv.get("amp", "2deg"), "amp")
+    if unit == "deg" or (unit is None and amp > 0.5):
+        amp = math.radians(amp)
+    bw, _ = num(kv.get("bw", "4"), "bw")
+    dur, _ = num(kv.get("dur", "40"), "dur")
+    if speed <= 0.5 or amp <= 0 or bw <= 0 or dur <= 2:
+        raise InputError(f"manoeuvre {text!r}: speed > 0.5 m/s, amp > 0, bw > 0 and dur > 2 s are needed")
+    return Manoeuvre(speed, amp, bw, dur)
+
+
+def steer_dft(m: Manoeuvre, fs: float = ANALYSIS_FS):
+    """Expected |U_k| of the manoeuvre's steer (deterministic: the spectrum's square root)."""
+    n = int(m.duration * fs)
+    f = np.fft.rfftfreq(n, 1 / fs)
+    b, a = signal.butter(6, m.bandwidth, fs=fs)
+    _, h = signal.freqz(b, a, worN=f, fs=fs)
+    shape = np.abs(h) ** 2 * np.abs(h) ** 2  # sosfiltfilt: the filter applied twice
+    # scale so the signal's variance is amp^2: sum |U_k|^2 (both sides) = n^2 var
+    p = shape / (2 * np.sum(shape[1:]))
+    return f, np.sqrt(p * n * n) * m.amp, n
+
+
+def datasheet_noise(fs: float = ANALYSIS_FS, sample_rate: float = 500.0, vehicle=None) -> dict:
+    """One-sided noise PSD of ay and r from the datasheets: the sensors' noise densities
+    through their output filters, plus 12-bit ADC quantisation at the firmware's rate."""
+    sensors = getattr(vehicle, "sensors", {}) or {}
+    bw_a = float(sensors.get("accel_bandwidth_hz", 50.0)) or np.inf
+    bw_g = float(sensors.get("gyro_bandwidth_hz", 88.0)) or np.inf
+    f = np.linspace(0, fs / 2, 512)
+    lsb_a = 3.3 / 4095 / 0.33 * G  # m/s^2 per count (ratiometric, 3.3 V)
+    lsb_g = math.radians(3.3 / 4095 / 3.3e-3)  # rad/s per count
+    q = lambda lsb: lsb ** 2 / 12 / (sample_rate / 2)  # noqa: E731
+    return {"ay": (f, ADXL335_NOISE ** 2 / (1 + (f / bw_a) ** 2) + q(lsb_a)),
+            "r": (f, LISY300AL_NOISE ** 2 / (1 + (f / bw_g) ** 2) + q(lsb_g))}
+
+
+def predict(model: Model, params: dict, manoeuvres: list[Manoeuvre], noise: dict, names=None) -> dict:
+    names = names or [n for n in model.param_names]
+    info = np.zeros((len(names), len(names)))
+    for m in manoeuvres:
+        info += _fisher_expected(model, params, names, m, noise)
+    cov = np.linalg.pinv(info)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    return {"names": names, "sd": dict(zip(names, sd)), "cov": cov, "corr": np.nan_to_num(corr),
+            "info": info}
+
+
+def _fisher_expected(model, params, names, m: Manoeuvre, noise):
+    f, U, n = steer_dft(m)
+    # fisher() takes a time record; build one whose DFT magnitude is U (phase irrelevant)
+    phase = np.exp(2j * np.pi * np.random.default_rng(0).random(len(U)))
+    phase[0] = 1
+    u = np.fft.irfft(U * phase, n)
+    return fisher(model, params, names, [(u, 1 / ANALYSIS_FS, m.speed)], noise,
+                  f_max=min(0.8 * PREFILTER_HZ, 0.45 * ANALYSIS_FS))
+
+
+def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
+    """What to add to reach each target (relative sd): more time, wider bandwidth, or a second speed."""
+    base = predict(model, params, manoeuvres, noise)
+    out = []
+    for name, target in targets.items():
+        if name not in base["sd"]:
+            raise InputError(f"--target {name}: the model {model.name} has no parameter {name}")
+        rel = base["sd"][name] / abs(params[name])
+        if rel <= target:
+            out.append(f"{name}: ±{100 * rel:.2g}% predicted, within the ±{100 * target:g}% target")
+            continue
+        ref = manoeuvres[0]
+        options = [
+            ("the same manoeuvre again", replace(ref)),
+            ("a second speed (1.5x)", replace(ref, speed=ref.speed * 1.5)),
+            ("random steer up to 1.5x the bandwidth", replace(ref, bandwidth=ref.bandwidth * 1.5)),
+            ("more steer (1.5x rms)", replace(ref, amp=ref.amp * 1.5)),
+        ]
+        best = None
+        for label, extra in options:
+            sd = predict(model, params, manoeuvres + [extra], noise)["sd"][name] / abs(params[name])
+            gain = (1 / sd ** 2 - 1 / rel ** 2) / extra.duration  # information per second of driving
+            if best is None or gain > best[0]:
+                best = (gain, label, extra, sd)
+        gain, label, extra, sd = best
+        # information adds: seconds of that manoeuvre needed to reach the target
+        need = (1 / target ** 2 - 1 / rel ** 2) / max(gain, 1e-300)
+        extra = replace(extra, duration=float(np.ceil(need / 10) * 10))
+        out.append(f"{name} ±{100 * target:g}% needs {extra.label()} in addition "
+                   f"(now ±{100 * rel:.1f}%; best of: more time, another speed, wider bandwidth, more steer)")
+    names = base["names"]
+    effects = {e.name for e in model.effects}
+    if {"actuator_lag", "tyre_relaxation"} <= effects and len({m.speed for m in manoeuvres}) == 1:
+        i, j = names.index("tau_steer"), names.index("sigma_f")
+        out.append(f"servo lag and relaxation are {abs(base['corr'][i, j]):.2f} correlated at one speed: to "
+                   "separate them add a second speed (relaxation lag scales with 1/speed, servo lag does not)")
+    return out
+
+
+def plan_report(model, params, manoeuvres, noise, targets, noise_source: str) -> tuple[str, dict]:
+    pred = predict(model, params, manoeuvres, noise)
+    lines = [f"plan for {model.name} (cornering stiffness per axle, N/rad; noise from {noise_source})"]
+    for m in manoeuvres:
+        lines.append(f"  drive: {m.label()}")
+    lines.append(f"  {'parameter':<14}{'value':>12}{'predicted sd':>15}{'':>9}  unit")
+    for n in pred["names"]:
+        v = params[n]
+        sd = pred["sd"][n]
+        rel = f"({100 * sd / abs(v):.1f}%)" if v else ""
+        lines.append(f"  {n:<14}{v:>12.5g}{sd:>15.4g}{rel:>9}  {model.param(n).unit}")
+    sugg = suggestions(model, params, manoeuvres, noise, targets)
+    for s_ in sugg:
+        lines.append("  " + s_)
+    doc = {"model": model.name, "noise": noise_source,
+           "manoeuvres": [vars(m) for m in manoeuvres],
+           "params": {n: {"value": float(params[n]), "predicted_sd": float(pred["sd"][n]),
+                          "unit": model.param(n).unit} for n in pred["names"]},
+           "suggestions": sugg}
+    return "\n".join(lines), doc

@@ -1,0 +1,70 @@
+"""stid plan: the predicted standard deviations match a Monte Carlo of fits within 30%.
+
+The Monte Carlo data come from stid's own model with the datasheet noise the plan
+assumes (white noise through the sensors' output filters, 12-bit quantisation), so
+the model is right by construction: this tests the bound's arithmetic and that the
+estimator reaches it. (On the simulated car, unmodelled structure adds spread: see
+benchmarks/accuracy_bench.py.)"""
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from conftest import REPO, tool
+from stid.fit.fitting import fit
+from stid.models.model import Model
+from stid.plan import ADXL335_NOISE, LISY300AL_NOISE, Manoeuvre, datasheet_noise, predict
+from stid.run import Run
+from stid.vehicle_file import load_vehicle
+
+VEHICLE = load_vehicle(REPO / "docs" / "examples" / "rc8.toml")
+TRUE = {"Cf": 400.0, "Cr": 475.0, "Iz": 0.25}
+
+
+def synthetic_run(seed, m: Manoeuvre, fs=500.0):
+    rng = np.random.default_rng(seed)
+    n = int((m.duration + 1.5) * fs)  # + the trims and start-up the fit drops
+    sos = signal.butter(6, m.bandwidth, fs=fs, output="sos")
+    steer = signal.sosfiltfilt(sos, rng.standard_normal(n))
+    steer *= m.amp / np.std(steer)
+    y = Model("bicycle", VEHICLE).simulate(TRUE, steer, 1 / fs, m.speed)
+    for j, (nd, bw) in enumerate(((ADXL335_NOISE, 50.0), (LISY300AL_NOISE, 88.0))):
+        b, a = signal.bilinear([2 * np.pi * bw], [1, 2 * np.pi * bw], fs)
+        y[:, j] += signal.lfilter(b, a, nd * math.sqrt(fs / 2) * rng.standard_normal(n))
+    lsb = (3.3 / 4095 / 0.33 * 9.81, math.radians(3.3 / 4095 / 3.3e-3))
+    y = np.round(y / lsb) * lsb  # the 12-bit ADC
+    return Run(f"mc{seed}", np.arange(n) / fs, steer, y[:, 0], y[:, 1], np.full(n, m.speed))
+
+
+def test_predicted_sd_matches_monte_carlo_within_30_percent():
+    m = Manoeuvre(speed=4.0, amp=math.radians(0.5), bandwidth=4.0, duration=20.0)
+    pred = predict(Model("bicycle", VEHICLE), TRUE, [m], datasheet_noise(vehicle=VEHICLE))
+    est = np.array([[fit([synthetic_run(s, m)], VEHICLE, "bicycle", "time").value(k) for k in TRUE]
+                    for s in range(40)])
+    observed = est.std(axis=0, ddof=1)
+    for k, obs in zip(TRUE, observed):
+        assert obs == pytest.approx(pred["sd"][k], rel=0.3), (k, obs, pred["sd"][k])
+    assert np.all(np.abs(est.mean(axis=0) - list(TRUE.values())) < 3 * observed)  # unbiased
+
+
+def test_more_data_shrinks_the_prediction_as_one_over_root_time():
+    model, noise = Model("bicycle", VEHICLE), datasheet_noise(vehicle=VEHICLE)
+    short = predict(model, TRUE, [Manoeuvre(4.0, 0.03, 4.0, 20.0)], noise)["sd"]
+    long = predict(model, TRUE, [Manoeuvre(4.0, 0.03, 4.0, 80.0)], noise)["sd"]
+    for k in TRUE:
+        assert long[k] == pytest.approx(short[k] / 2, rel=0.05)
+
+
+def test_plan_cli_suggests_what_to_drive(tmp_path):
+    r = subprocess.run([tool("stid"), "plan", "--vehicle", str(REPO / "docs" / "examples" / "rc8.toml"),
+                        "--model", "bicycle+actuator_lag+tyre_relaxation", "--manoeuvre",
+                        "speed=4,amp=0.3deg,bw=3,dur=20", "--target", "Iz=0.5%"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "Iz ±0.5% needs random steer" in r.stdout
+    assert "add a second speed" in r.stdout
+    bad = subprocess.run([tool("stid"), "plan", "--vehicle", str(REPO / "docs" / "examples" / "rc8.toml"),
+                          "--manoeuvre", "speed=fast"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "not a number" in bad.stderr and "Traceback" not in bad.stderr
