@@ -10,9 +10,6 @@ import sys
 from host.errors import HostError
 from stid.errors import StidError
 
-NOT_YET = {
-    "batch": "fit many runs in parallel",
-}
 
 
 def _cmd_flash(args) -> int:
@@ -157,6 +154,13 @@ def _cmd_plan(args) -> int:
     return 0
 
 
+def _cmd_batch(args) -> int:
+    from stid.batch import batch_cli
+
+    return batch_cli(args.runs, args.vehicle, args.model, args.method, args.workers, args.scheduler,
+                     args.output, args.diagnose)
+
+
 def _cmd_calibrate(args) -> int:
     from stid.calibrate import calibrate_cli
 
@@ -167,13 +171,6 @@ def _cmd_repair(args) -> int:
     from host.repair import repair_cli
 
     return repair_cli(args.file, args.output)
-
-
-def _not_yet(name):
-    def run(args) -> int:
-        raise StidError(f"'stid {name}' is not implemented yet in this version; "
-                        "see the project's open issues")
-    return run
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -238,6 +235,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_plan)
 
+    p = sub.add_parser("batch", help="fit (and diagnose) many runs in parallel; one table and drift plots")
+    p.add_argument("runs", metavar="DIR_OR_GLOB", help="a directory of runs or a glob like 'logs/*.mcap'")
+    p.add_argument("--vehicle", required=True)
+    p.add_argument("--model", default="bicycle")
+    p.add_argument("--method", default="time", choices=["time", "freq", "auto"])
+    p.add_argument("--diagnose", action="store_true", help="also name the missing effect of each run")
+    p.add_argument("--workers", type=int, help="local processes (default: one per core)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("-o", "--output", default="stid-batch.csv", help="results table (.csv or .parquet)")
+    p.set_defaults(func=_cmd_batch)
+
     p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
     p.add_argument("standstill", help="STANDSTILL.mcap: the car at rest on level ground, engine off")
     p.add_argument("--vehicle", required=True, help="vehicle TOML to update ([sensors], [steering])")
@@ -250,10 +258,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="output path (default: FILE with .repaired.mcap)")
     p.set_defaults(func=_cmd_repair)
 
-    for name, text in NOT_YET.items():
-        p = sub.add_parser(name, help=f"{text} (not yet implemented)")
-        p.add_argument("args", nargs="*")
-        p.set_defaults(func=_not_yet(name))
     return ap
 
 
