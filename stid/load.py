@@ -45,6 +45,9 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
         head = f.read(8)
     if head == b"\x89MCAP0\r\n":
         return load_mcap(path, vehicle)
+    if path.suffix.lower() == ".mcap":
+        raise InputError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic at its start): "
+                         "corrupted, or not written by stid-log")
     return [load_csv(path)]
 
 
