@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from host.errors import HostError
 from host.mcap_read import read_log
@@ -54,6 +53,8 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
 # -- CSV ------------------------------------------------------------------------
 
 def load_csv(path) -> Run:
+    import pandas as pd  # only CSV needs it (and it costs a quarter second to import)
+
     path = Path(path)
     try:
         df = pd.read_csv(path)

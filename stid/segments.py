@@ -4,7 +4,16 @@ steady-state cornering; trim start-up transients."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
+
+
+def uniform_filter1d(x: np.ndarray, size: int) -> np.ndarray:
+    """Centred moving average with edge values repeated (as scipy.ndimage's 'nearest')."""
+    x = np.asarray(x, float)
+    size = max(1, int(size))
+    pad_l, pad_r = size // 2, size - 1 - size // 2
+    xp = np.concatenate([np.full(pad_l, x[0]), x, np.full(pad_r, x[-1])])
+    c = np.concatenate([[0.0], np.cumsum(xp)])
+    return (c[size:] - c[:-size]) / size
 
 
 def _runs_of(mask: np.ndarray, min_len: int):

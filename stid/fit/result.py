@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy.special import stdtrit  # Student t quantile (scipy.stats is slow to import)
 
 OUTPUT_UNITS = {"ay": "m/s^2", "r": "rad/s"}
 
@@ -59,7 +59,7 @@ class FitResult:
     @property
     def ci95(self) -> np.ndarray:
         dof = max(self.n - len(self.values), 1)
-        q = stats.t.ppf(0.975, dof)
+        q = stdtrit(dof, 0.975)
         return np.column_stack([self.values - q * self.stderr, self.values + q * self.stderr])
 
     @property
