@@ -96,9 +96,11 @@ def _plot(clean, lag):
             ax.add_patch(plt.Rectangle((2 * i - 0.3, -b), 0.6, 2 * b, color="C0", alpha=0.15))
         ax.axhline(0, color="k", lw=0.8)
         ax.set_xticks([0, 1, 2, 3], ["clean\nstid", "clean\nstudy", "lag\nstid", "lag\nstudy"])
-        ax.set_title(f"{k}: error [%] (±2 sd; shaded ±2 Cramér-Rao)")
+        ax.set_title(f"{k} error [%]")
         ax.grid(alpha=0.3)
     axes[0].legend()
+    fig.suptitle("Estimation error over the Monte Carlo seeds: mean ± 2 sd; shaded: ± 2 Cramér-Rao bound "
+                 "(sensor noise)", fontsize=10)
     fig.tight_layout()
     RESULTS.mkdir(exist_ok=True)
     fig.savefig(RESULTS / "accuracy.png", dpi=110)
