@@ -28,13 +28,9 @@ def _cmd_fit(args) -> int:
     import json
 
     from stid.fit.fitting import fit
-    from stid.load import load_runs
     from stid.progress import Progress
-    from stid.vehicle_file import load_vehicle
 
-    vehicle = load_vehicle(args.vehicle)
-    runs = load_runs(args.runs, vehicle)
-    _print_load_warnings(runs)
+    vehicle, runs = _vehicle_and_runs(args)
     with Progress(f"fitting {args.model} ({args.method})"):
         res = fit(runs, vehicle, args.model, args.method)
     if args.json:
@@ -42,6 +38,17 @@ def _cmd_fit(args) -> int:
     else:
         print(res.table())
     return 0
+
+
+def _vehicle_and_runs(args):
+    """The vehicle file and the runs of a command, with the loaders' warnings printed."""
+    from stid.load import load_runs
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    runs = load_runs(args.runs, vehicle)
+    _print_load_warnings(runs)
+    return vehicle, runs
 
 
 def _print_load_warnings(runs) -> None:
@@ -54,14 +61,10 @@ def _cmd_diagnose(args) -> int:
     import json
 
     from stid.diagnose import diagnose
-    from stid.load import load_runs
     from stid.present import diagnosis_text
     from stid.progress import Progress
-    from stid.vehicle_file import load_vehicle
 
-    vehicle = load_vehicle(args.vehicle)
-    runs = load_runs(args.runs, vehicle)
-    _print_load_warnings(runs)
+    vehicle, runs = _vehicle_and_runs(args)
     with Progress("diagnosing") as prog:
         rounds = diagnose(runs, vehicle, args.model, peel=args.peel, progress=prog)
     if args.json:
@@ -78,14 +81,10 @@ def _cmd_compare(args) -> int:
     import json
 
     from stid.compare import compare
-    from stid.load import load_runs
     from stid.present import comparison_text
     from stid.progress import Progress
-    from stid.vehicle_file import load_vehicle
 
-    vehicle = load_vehicle(args.vehicle)
-    runs = load_runs(args.runs, vehicle)
-    _print_load_warnings(runs)
+    vehicle, runs = _vehicle_and_runs(args)
     with Progress("comparing") as prog:
         entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog)
     if args.json:
@@ -97,14 +96,10 @@ def _cmd_compare(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from stid.load import load_runs
     from stid.progress import Progress
     from stid.report import write_report
-    from stid.vehicle_file import load_vehicle
 
-    vehicle = load_vehicle(args.vehicle)
-    runs = load_runs(args.runs, vehicle)
-    _print_load_warnings(runs)
+    vehicle, runs = _vehicle_and_runs(args)
     with Progress("writing the report") as prog:
         path = write_report(runs, vehicle, args.output, args.model, progress=prog)
     print(path)

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from stid.fit.solver import autocorrelation
+
 Z99 = 2.576
 
 
@@ -47,13 +49,9 @@ class ResidualAnalysis:
 
 def tau_int(e: np.ndarray, max_lag: int) -> float:
     """Integrated autocorrelation time 1 + 2 sum rho_k, summed until rho first drops below 0.05."""
-    e = e - e.mean()
-    n = len(e)
-    if n < 8 or not np.any(e):
+    if len(e) < 8 or not np.any(e - e.mean()):
         return 1.0
-    f = np.fft.rfft(e, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[: max_lag + 1]
-    ac = ac / ac[0]
+    ac = autocorrelation(e, max_lag)
     below = np.flatnonzero(ac[1:] < 0.05)
     k = int(below[0]) + 1 if len(below) else max_lag
     return float(max(1.0, 1 + 2 * np.sum(ac[1:k])))

@@ -18,7 +18,7 @@ import numpy as np
 
 from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.frf import FRF, estimate_frf
-from stid.fit.solver import ParamSpace, covariance_white, least_squares, to_physical
+from stid.fit.solver import ParamSpace, starting_points, covariance_white, least_squares, to_physical
 from stid.fit.result import Prediction
 from stid.fit.time_fit import make_result, _keep
 from stid.fit import checks
@@ -55,16 +55,7 @@ def fit_freq(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     p0 = model.defaults()
     p0.update(init or {})
     p0.update(fixed)
-    starts = [p0]
-    if model.effects:
-        for f in (0.3, 3.0):
-            q = dict(p0)
-            for e in model.effects:
-                for par in e.params:
-                    if par.log and par.multistart and par.name in space.free:
-                        q[par.name] = p0[par.name] * f
-            if q != p0:
-                starts.append(q)
+    starts = starting_points(model, space, p0, bool(model.effects))
     res = least_squares(lambda p: frf_residual(model, p, frfs, weighting), space, starts)
     p_hat = space.to_p(res.x)
     col = np.linalg.norm(res.jac, axis=0)

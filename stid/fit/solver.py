@@ -65,6 +65,23 @@ class ParamSpace:
         return [n for n, xi, a, b, s in zip(self.free, x, lo, hi, span) if xi - a < tol * s or b - xi < tol * s]
 
 
+def starting_points(model, space: ParamSpace, p0: dict, multistart: bool) -> list:
+    """p0, and (multistart) p0 with every free effect parameter at 0.3x and 3x: lags and
+    lengths make the cost non-convex, and a second basin is a factor away, not a step."""
+    starts = [p0]
+    if not multistart:
+        return starts
+    for f in (0.3, 3.0):
+        q = dict(p0)
+        for e in model.effects:
+            for par in e.params:
+                if par.log and par.multistart and par.name in space.free:
+                    q[par.name] = p0[par.name] * f
+        if q != p0:
+            starts.append(q)
+    return starts
+
+
 def least_squares(residual, space: ParamSpace, starts: list, **kw):
     """Run scipy's bounded trust-region least squares from each start; keep the best."""
     lo, hi = space.bounds_x()
@@ -98,16 +115,22 @@ def covariance_white(J: np.ndarray, r: np.ndarray, n_params: int, scale_by_chi2:
     return cov * max(chi2, 1.0) if scale_by_chi2 else cov
 
 
-def autocorr_length(e: np.ndarray, max_lag: int) -> int:
-    """Lag at which the residual autocorrelation first falls below 0.05."""
+def autocorrelation(e: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised autocorrelation of e at lags 0..max_lag (FFT)."""
     e = e - e.mean()
     n = len(e)
     if n < 4 or not np.any(e):
-        return 1
+        out = np.zeros(max_lag + 1)
+        out[0] = 1.0
+        return out
     f = np.fft.rfft(e, 2 * n)
     ac = np.fft.irfft(f * np.conj(f))[: max_lag + 1]
-    ac /= ac[0]
-    below = np.flatnonzero(np.abs(ac) < 0.05)
+    return ac / ac[0]
+
+
+def autocorr_length(e: np.ndarray, max_lag: int) -> int:
+    """Lag at which the residual autocorrelation first falls below 0.05."""
+    below = np.flatnonzero(np.abs(autocorrelation(e, max_lag)) < 0.05)
     return int(below[0]) if len(below) else max_lag
 
 

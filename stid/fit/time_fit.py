@@ -17,7 +17,7 @@ from scipy import signal
 
 from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.result import FitResult, Prediction, fit_percent
-from stid.fit.solver import ParamSpace, covariance_sandwich, least_squares, to_physical
+from stid.fit.solver import ParamSpace, starting_points, covariance_sandwich, least_squares, to_physical
 from stid.fit import checks
 
 OUTPUTS = ("ay", "r")
@@ -57,18 +57,9 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     p0 = model.defaults()
     p0.update(init or {})
     p0.update(fixed)
-    starts = [p0]
     if multistart is None:
         multistart = bool(model.effects)
-    if multistart:
-        for f in (0.3, 3.0):
-            q = dict(p0)
-            for e in model.effects:
-                for par in e.params:
-                    if par.log and par.multistart and par.name in space.free:
-                        q[par.name] = p0[par.name] * f
-            if q != p0:
-                starts.append(q)
+    starts = starting_points(model, space, p0, multistart)
     res = least_squares(lambda p: residual(p, sigma), space, starts)
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once
