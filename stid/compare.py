@@ -12,13 +12,13 @@ from stid.models.model import Model
 
 
 def compare(runs, vehicle, models: list[str], method: str = "time", progress=None) -> list[dict]:
+    models = [Model(name, vehicle) for name in models]  # names checked before any data work
     stretches = dataset.dynamic_stretches(runs)
     floor = noise_floor(stretches)
     entries = []
-    for name in models:
+    for model in models:
         if progress:
-            progress.step(name)
-        model = Model(name, vehicle)
+            progress.step(model.name)
         res = fit_time(model, stretches) if method == "time" else fit_freq(model, stretches)
         ra = analyse(res.predictions)
         bd = breakdown(res.predictions)

@@ -287,6 +287,7 @@ def explain(c: Candidate, base, stretches) -> str:
 def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max_steps: int = 4,
              progress=None) -> list[Diagnosis]:
     """One round, or (peel) rounds adding the winner until nothing significant remains."""
+    Model(model_name, vehicle)  # a misspelt model is the user's first mistake to hear about
     stretches = dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
     rounds = []
     name = model_name
