@@ -150,6 +150,35 @@ def residual_figure(chain):
     return fig
 
 
+def spectrum_figure(chain, stretches):
+    """Residual spectra of the first and last model against the noise floor's (the FIR
+    predictor's cross-validated error): where a model's residual sits above the floor,
+    something the steer explains is still missing there."""
+    from scipy import signal
+
+    from stid.analysis.noise_floor import floor_errors
+
+    fl, _ = floor_errors(stretches)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    fs = 1.0 / stretches[0].dt
+    nper = int(4 * fs)
+    for j, (ax, out) in enumerate(zip(axes, ("ay", "r"))):
+        f, P = signal.welch(np.concatenate(fl[out]), fs=fs, nperseg=nper)
+        ax.semilogy(f, P, color="k", lw=1.5, label="noise floor (best linear predictor)")
+        for (name, res), col in zip((chain[0], chain[-1]), (COLORS[0], COLORS[2])):
+            e = np.concatenate([(p.y - p.yhat)[p.keep, j] for p in res.predictions])
+            f2, Pe = signal.welch(e - e.mean(), fs=fs, nperseg=nper)
+            ax.semilogy(f2, Pe, color=col, lw=1.2, label=name)
+        ax.set_xlim(0, 15)
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_title(f"{out} residual spectrum [{'(m/s^2)^2/Hz' if out == 'ay' else '(rad/s)^2/Hz'}]")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Residual spectra against the noise floor")
+    fig.tight_layout()
+    return fig
+
+
 def by_ay_figure(chain):
     fig, ax = plt.subplots(figsize=(7, 3.4))
     first, last = chain[0][1], chain[-1][1]
@@ -221,7 +250,8 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
             ("Measured vs model in time", time_figure(chain)),
             ("Measured vs model in frequency", bode_figure(chain, stretches, vehicle)),
             ("Where the error lives", by_ay_figure(chain)),
-            ("Residual analysis", residual_figure(chain))]
+            ("Residual analysis", residual_figure(chain)),
+            ("Residual spectra against the noise floor", spectrum_figure(chain, stretches))]
     sfig, sres = steady_figure(runs, vehicle)
     if sfig is not None:
         figs.insert(3, ("Steady-state cornering", sfig))

@@ -17,8 +17,9 @@ def test_report_is_self_contained_and_tells_the_story(simdir, tmp_path):
     page = (tmp_path / "rep" / "report.html").read_text()
     assert r.stdout.strip().endswith("report.html")
     images = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", page)
-    assert len(images) >= 5
+    assert len(images) >= 6  # error fall, time, Bode, |ay| bins, residual correlations, residual spectra
     assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
     assert "src='http" not in page and 'src="http' not in page  # nothing fetched from outside
-    for text in ("bicycle+actuator_lag", "accel_offset", "N/rad", "noise floor", "The error falls"):
+    for text in ("bicycle+actuator_lag", "accel_offset", "N/rad", "noise floor", "The error falls",
+                 "Residual spectra against the noise floor"):
         assert text in page, text

@@ -40,7 +40,9 @@ def _fir_cv(u: np.ndarray, y: np.ndarray, taps: int, ridge: float = 1e-6) -> np.
     return pred
 
 
-def noise_floor(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> dict:
+def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> tuple[dict, dict]:
+    """The FIR predictor's cross-validated errors (the floor, sample by sample) and the
+    outputs they belong to, per output: lists of arrays, one per stretch."""
     err = {"ay": [], "r": []}
     ref = {"ay": [], "r": []}
     for st in stretches:
@@ -52,6 +54,11 @@ def noise_floor(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5)
             pred = _fir_cv(st.steer, y, taps)
             err[name].append((y - pred)[keep])
             ref[name].append(y[keep])
+    return err, ref
+
+
+def noise_floor(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> dict:
+    err, ref = floor_errors(stretches, memory_s, keep_from_s)
     out = {}
     for k in err:
         if not err[k]:
