@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -100,7 +99,6 @@ def scaling(d: Path, quick: bool) -> dict:
     from stid.models.effect import available_effects
     from stid.run import Run
     from stid.vehicle_file import load_vehicle
-    import stid.diagnose as dg
 
     v = load_vehicle(VEHICLE)
     base = load_runs(make_runs(d, ("actuator_lag",)), v)
@@ -118,12 +116,6 @@ def scaling(d: Path, quick: bool) -> dict:
                               "diagnose_s": t_diag})
     names = list(available_effects())
     for m in ((1, len(names)) if quick else (1, 3, len(names))):
-        keep = set(names[:m])
-        saved = dict(dg.available_effects())
-        try:
-            dg.available_effects = lambda: {n: c for n, c in saved.items() if n in keep}  # noqa: E731
-            t, _ = _best_of(lambda: diagnose(base, v, "bicycle"), n=1)
-        finally:
-            dg.available_effects = available_effects
+        t, _ = _best_of(lambda: diagnose(base, v, "bicycle", candidates=names[:m]), n=1)
         out["candidates"].append({"candidates": m, "diagnose_s": t})
     return out

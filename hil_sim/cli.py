@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def config_from_args(args) -> "SimConfig":
+def config_from_args(args):
     from hil_sim.run import SimConfig
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())

@@ -58,6 +58,17 @@ def frame_chunks(stream: bytes):
 def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: int | None = None) -> dict:
     run = simulate_run(cfg)
     stream = firmware_bytes(run)
+    stats = record_stream(stream, mcap_path, start_ns)
+    if truth_path:
+        write_truth(run, truth_path)
+    if csv_path:
+        write_csv(run, stream, csv_path)
+    return stats
+
+
+def record_stream(stream: bytes, mcap_path, start_ns: int | None = None) -> dict:
+    """The firmware's bytes through the same recorder stid-log uses, with receive times
+    that follow the MCU clock (plus a fixed latency), frame by frame."""
     chunks, t_us = frame_chunks(stream)
     base = (start_ns if start_ns is not None else time.time_ns()) - int(t_us[0]) * 1000 if len(t_us) else 0
     log = McapLog(mcap_path, fsync=False)
@@ -67,10 +78,6 @@ def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: 
         rec.feed(chunk, base + int(tu) * 1000 + HOST_LATENCY_NS)
     stats = rec.finish(base + int(t_us[-1]) * 1000 + HOST_LATENCY_NS if len(t_us) else base)
     log.close()
-    if truth_path:
-        write_truth(run, truth_path)
-    if csv_path:
-        write_csv(run, stream, csv_path)
     return stats
 
 

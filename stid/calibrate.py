@@ -101,7 +101,7 @@ def steering_from_circles(paths, vehicle: Vehicle) -> dict:
                 continue
             # the pulse widths behind run.steer, from the current calibration
             us = run.steer * vehicle.steer_us_per_rad + vehicle.steer_center_us
-            for a, b in segments._runs_of(mask, int(fs)):
+            for a, b in segments.runs_of(mask, int(fs)):
                 pulses.append(float(np.mean(us[a:b])))
                 angles.append(float(np.arctan(vehicle.L * np.mean(run.r[a:b]) / np.mean(run.vx[a:b]))))
     if len(pulses) < 2 or np.ptp(pulses) < 50:

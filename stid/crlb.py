@@ -35,29 +35,36 @@ def noise_psd_from_residuals(predictions, seg_s: float = 4.0):
     return out
 
 
+def fisher_spectrum(model, p: dict, names: list, f: np.ndarray, U: np.ndarray, n: int, fs: float, vx: float,
+                    noise: dict, f_max: float = F_MAX, rel_step: float = 1e-4) -> np.ndarray:
+    """Fisher information from the steer's DFT U at the rfft frequencies f of an n-sample
+    record (a measured record, or a planned manoeuvre's expected spectrum)."""
+    k = len(names)
+    band = (f > 0) & (f <= min(f_max, 0.45 * fs))
+    fb = f[band]
+    dY = np.zeros((k, 2, len(fb)), complex)
+    for i, name in enumerate(names):
+        h = rel_step * max(abs(p[name]), 1e-6)
+        hp, hm = dict(p), dict(p)
+        hp[name] += h
+        hm[name] -= h
+        dY[i] = (model.freqresp(hp, fb, vx) - model.freqresp(hm, fb, vx)) / (2 * h) * U[band]
+    info = np.zeros((k, k))
+    for o, out in enumerate(("ay", "r")):
+        fn, Pn = noise[out]
+        S = np.interp(fb, fn, Pn) * fs / 2.0
+        D = dY[:, o, :]
+        info += 2.0 * np.real(np.conj(D) @ (D / (n * S)).T)
+    return info
+
+
 def fisher(model, p: dict, names: list, inputs: list, noise: dict, f_max: float = F_MAX, rel_step: float = 1e-4):
     """Fisher information for ``names`` from input records [(steer, dt, vx), ...]."""
-    k = len(names)
-    info = np.zeros((k, k))
+    info = np.zeros((len(names), len(names)))
     for steer, dt, vx in inputs:
         u = np.asarray(steer) - np.mean(steer)
-        n = len(u)
-        fs = 1.0 / dt
-        U = np.fft.rfft(u)
-        f = np.fft.rfftfreq(n, dt)
-        band = (f > 0) & (f <= min(f_max, 0.45 * fs))
-        fb = f[band]
-        dY = np.zeros((k, 2, len(fb)), complex)
-        for i, name in enumerate(names):
-            h = rel_step * max(abs(p[name]), 1e-6)
-            hp, hm = dict(p), dict(p)
-            hp[name] += h
-            hm[name] -= h
-            dY[i] = (model.freqresp(hp, fb, vx) - model.freqresp(hm, fb, vx)) / (2 * h) * U[band]
-        for o, (fn, Pn) in enumerate(noise[k_] for k_ in ("ay", "r")):
-            S = np.interp(fb, fn, Pn) * fs / 2.0
-            D = dY[:, o, :]
-            info += 2.0 * np.real(np.conj(D) @ (D / (n * S)).T)
+        info += fisher_spectrum(model, p, names, np.fft.rfftfreq(len(u), dt), np.fft.rfft(u), len(u), 1.0 / dt,
+                                vx, noise, f_max, rel_step)
     return info
 
 
@@ -78,7 +85,7 @@ def noise_psd_from_still(runs, seg_s: float = 1.0, f_prefilter: float = 20.0, ta
         fs = run.fs
         q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
         mask = segments.still_mask(run.vx, fs)
-        for a, b in segments._runs_of(mask, int(1.5 * seg_s * fs)):
+        for a, b in segments.runs_of(mask, int(1.5 * seg_s * fs)):
             for name in ("ay", "r"):
                 x = _decimate(prefilter(getattr(run, name)[a:b], fs, f_prefilter), q)
                 x = x[len(x) // 8: len(x) - len(x) // 8]  # filter edges

@@ -103,13 +103,10 @@ class Diagnosis:
 
 def _lr(base, res, n_eff):
     """LR statistic with the effective sample size, outputs treated as independent."""
-    s = 0.0
-    for pb, pr in ((base, res),):
-        yb = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in pb.predictions])
-        yr = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in pr.predictions])
-        for i in range(2):
-            s += math.log(np.mean(yb[:, i] ** 2) / max(np.mean(yr[:, i] ** 2), 1e-300))
-    return n_eff * s
+    eb = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in base.predictions])
+    er = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in res.predictions])
+    ratio = np.mean(eb ** 2, axis=0) / np.maximum(np.mean(er ** 2, axis=0), 1e-300)
+    return float(n_eff * np.sum(np.log(ratio)))
 
 
 def screen_out(effect_cls, stretches) -> str:
@@ -123,7 +120,7 @@ def screen_out(effect_cls, stretches) -> str:
 
 
 def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, base=None,
-                   stretches=None) -> Diagnosis:
+                   stretches=None, candidates=None) -> Diagnosis:
     stretches = stretches or dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
     base_name, present = parse_model_name(model_name)
     model = Model(model_name, vehicle)
@@ -135,7 +132,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
     n_eff = ra.n / tau
     floor = noise_floor(stretches)
     cands = []
-    names = [n for n in available_effects() if n not in present]
+    names = [n for n in (candidates or available_effects()) if n not in present]
     for name in names:
         cls = available_effects()[name]
         c = Candidate(name)
@@ -175,7 +172,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         else:
             c.significant = True
     tested.sort(key=lambda c: (not c.significant, -c.lr))
-    _confusions(tested, runs)
+    _confusions(tested)
     for c in tested:
         c.explanation = explain(c, base, stretches)
     ordered = tested + [c for c in cands if c.skipped]
@@ -227,7 +224,7 @@ def _fit_candidates(model_name, effects, vehicle, stretches, init, sigma, progre
         return list(ex.map(_fit_one, jobs))
 
 
-def _confusions(tested, runs) -> None:
+def _confusions(tested) -> None:
     sig = [c for c in tested if c.significant]
     if not sig:
         return
@@ -285,15 +282,17 @@ def explain(c: Candidate, base, stretches) -> str:
 
 
 def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max_steps: int = 4,
-             progress=None) -> list[Diagnosis]:
-    """One round, or (peel) rounds adding the winner until nothing significant remains."""
+             progress=None, candidates=None) -> list[Diagnosis]:
+    """One round, or (peel) rounds adding the winner until nothing significant remains.
+    ``candidates``: effect names to try (default: every registered effect)."""
     Model(model_name, vehicle)  # a misspelt model is the user's first mistake to hear about
     stretches = dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
     rounds = []
     name = model_name
     base = None
     for _ in range(max_steps if peel else 1):
-        d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches)
+        d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches,
+                           candidates=candidates)
         rounds.append(d)
         best = d.best
         if best is None or best.separable_from:

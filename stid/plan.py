@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import signal
 
-from stid.crlb import fisher
+from stid.crlb import fisher_spectrum
 from stid.errors import InputError
 from stid.fit.dataset import PREFILTER_HZ
 from stid.models.model import Model
@@ -117,12 +117,8 @@ def predict(model: Model, params: dict, manoeuvres: list[Manoeuvre], noise: dict
 
 def _fisher_expected(model, params, names, m: Manoeuvre, noise):
     f, U, n = steer_dft(m)
-    # fisher() takes a time record; build one whose DFT magnitude is U (phase irrelevant)
-    phase = np.exp(2j * np.pi * np.random.default_rng(0).random(len(U)))
-    phase[0] = 1
-    u = np.fft.irfft(U * phase, n)
-    return fisher(model, params, names, [(u, 1 / ANALYSIS_FS, m.speed)], noise,
-                  f_max=min(0.8 * PREFILTER_HZ, 0.45 * ANALYSIS_FS))
+    return fisher_spectrum(model, params, names, f, U, n, ANALYSIS_FS, m.speed, noise,
+                           f_max=min(0.8 * PREFILTER_HZ, 0.45 * ANALYSIS_FS))
 
 
 def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:

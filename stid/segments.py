@@ -16,7 +16,7 @@ def uniform_filter1d(x: np.ndarray, size: int) -> np.ndarray:
     return (c[size:] - c[:-size]) / size
 
 
-def _runs_of(mask: np.ndarray, min_len: int):
+def runs_of(mask: np.ndarray, min_len: int):
     """(start, stop) index pairs of True stretches at least ``min_len`` long."""
     m = np.concatenate([[False], mask.astype(bool), [False]])
     edges = np.flatnonzero(np.diff(m.astype(np.int8)))
@@ -30,7 +30,7 @@ def still_mask(vx: np.ndarray, fs: float, v_still: float = 0.05, min_s: float = 
     out = np.zeros(len(vx), bool)
     # the edges of a still stretch still move (rolling to a stop): keep its core
     trim = int(0.1 * fs)
-    for a, b in _runs_of(mask, int(min_s * fs)):
+    for a, b in runs_of(mask, int(min_s * fs)):
         out[a + trim:max(a + trim, b - trim)] = True
     return out
 
@@ -44,7 +44,7 @@ def constant_speed(vx: np.ndarray, fs: float, tol: float = 0.05, min_s: float = 
     moving = (vx > v_min) & (mean > v_min)
     out = []
     n_min = int(min_s * fs)
-    for a, b in _runs_of(moving, n_min):
+    for a, b in runs_of(moving, n_min):
         i = a
         while i < b:
             lo = hi = mean[i]

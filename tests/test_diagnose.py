@@ -4,7 +4,6 @@ identifier were written apart: the diagnosis does not know the answer)."""
 import json
 import subprocess
 
-import numpy as np
 import pytest
 
 from conftest import REPO, tool

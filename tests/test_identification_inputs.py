@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO, tool
-from simdata import random_steer_pair, sim_run
+from simdata import random_steer_pair
 
 VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
 

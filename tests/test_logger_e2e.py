@@ -10,8 +10,6 @@ import pytest
 from cobs import cobs
 
 from conftest import tool
-from host import protocol as p
-from host.frame_decoder import FrameDecoder
 from host.mcap_read import read_log
 from host.mcap_log import FRAMES_TOPIC
 

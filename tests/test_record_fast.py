@@ -8,26 +8,14 @@ import pytest
 from mcap.reader import make_reader
 
 from hil_sim.manoeuvres import Plan
-from hil_sim.record import firmware_bytes
+from hil_sim.record import firmware_bytes, record_stream
 from hil_sim.run import SimConfig, simulate_run
 from host import protocol as p
-from host.mcap_log import McapLog
 from host.mcap_read import read_log
-from host.recorder import Recorder
 
 
 def record_run(run, path, start_ns=1_700_000_000_000_000_000):
-    stream = firmware_bytes(run)
-    log = McapLog(path, fsync=False)
-    rec = Recorder(log)
-    from hil_sim.record import HOST_LATENCY_NS, frame_chunks
-
-    chunks, t_us = frame_chunks(stream)
-    for c, tu in zip(chunks, t_us):
-        rec.feed(c, start_ns + int(tu) * 1000 + HOST_LATENCY_NS)
-    stats = rec.finish(start_ns + int(t_us[-1]) * 1000)
-    log.close()
-    return stats
+    return record_stream(firmware_bytes(run), path, start_ns)
 
 
 def expected_counts(run, t_virtual_us, pin, board):

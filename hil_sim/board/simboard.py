@@ -13,7 +13,6 @@
 import json
 import os
 import struct
-import sys
 from array import array
 
 import utime

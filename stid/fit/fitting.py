@@ -86,7 +86,6 @@ def two_step(model: Model, runs, dynamic: str = "time"):
             se = ss.stderr[i]
             res.fixed[n] = (ss.values[i], "N/rad", f"from steady state (std. error {se:.4g})")
     else:
-        p = res.all_params()
         p_hat = dict(zip(res.names, res.values))
         p_hat.update(space.derived(p_hat))
         res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr")

@@ -153,15 +153,6 @@ class LinSys:
         return control.ss(self.A, self.B, self.C, self.D, inputs=self.inputs, outputs=self.outputs,
                           states=self.states)
 
-    def discretize(self, dt: float):
-        """Zero-order-hold discretisation (Ad, Bd) via the matrix exponential."""
-        n, m = self.B.shape
-        M = np.zeros((n + m, n + m))
-        M[:n, :n] = self.A
-        M[:n, n:] = self.B
-        E = linalg.expm(M * dt)
-        return E[:n, :n], E[:n, n:]
-
     def simulator(self, dt: float, outputs=None, inputs=None):
         """Precompute the discrete transfer functions once; return ``sim(u) -> y``.
 

@@ -1,7 +1,6 @@
 # The hot path allocates nothing: the sampler interrupt, building and sending
 # sample frames, STATUS and HELLO all run under micropython.heap_lock(), on the
 # simulated board (run with hil_sim/board first on MICROPYPATH).
-import sys
 
 import micropython
 
