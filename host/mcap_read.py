@@ -63,8 +63,8 @@ def iter_records(path: Path):
     """
     with open(path, "rb") as f:
         if f.read(len(MAGIC)) != MAGIC:
-            raise LogReadError(f"{path} is not an MCAP file (no MCAP magic at the start); "
-                               "pass a file written by stid-log, or a CSV in the import contract")
+            raise LogReadError(f"{path} is not an MCAP file (no MCAP magic at the start): "
+                               "corrupted, or not written by stid-log")
         f.seek(0)
         it = StreamReader(f, skip_magic=False).records
         footer_seen = False
