@@ -14,6 +14,7 @@ import numpy as np
 from scipy import signal
 
 MANOEUVRES = ("random_steer", "chirp", "steady_circle", "step_steer", "double_lane_change", "standstill")
+SPEED_PROFILES = ("constant", "track")
 
 
 @dataclass
@@ -37,6 +38,8 @@ class Plan:
     still: float = 2.0  # s standing still at the start
     run_up: float = 3.0  # s to accelerate before steering
     speed_end: float | None = None  # steady_circle: speed at the end of the sweep
+    speed_profile: str = "constant"  # "track": accelerate and brake every few seconds
+    speed_swing: float = 0.25  # track: the speed target moves within +-this fraction of `speed`
 
 
 def _ramp(t, t0, t1):
@@ -80,7 +83,28 @@ def build(plan: Plan, dt: float, rng: np.random.Generator) -> Manoeuvre:
         delta = np.where(on & (np.mod(tm, period) < period / 2), plan.steer_amp * np.where(k % 2 == 0, 1, -1), 0.0)
     elif plan.name == "double_lane_change":
         path = _lane_change_path(plan)
+    if plan.speed_profile not in SPEED_PROFILES:
+        raise ValueError(f"unknown speed profile {plan.speed_profile!r}; choose one of {', '.join(SPEED_PROFILES)}")
+    if plan.speed_profile == "track" and plan.name not in ("standstill", "steady_circle"):
+        v_ref = np.where(on, _track_speed(t, t_steer, plan, rng), v_ref)
     return Manoeuvre(plan.name, t, delta, v_ref, path)
+
+
+def _track_speed(t, t_steer, plan: Plan, rng: np.random.Generator) -> np.ndarray:
+    """A driver on a track: a new speed target every 2-5 s, anywhere within +-speed_swing of
+    the plan's speed, reached by throttle or brake; the first target is the run-up speed."""
+    if not 0 <= plan.speed_swing < 1:
+        raise ValueError("speed swing must be a fraction in [0, 1)")
+    times, targets = [t_steer], [plan.speed]
+    while times[-1] < t[-1]:
+        times.append(times[-1] + rng.uniform(2.0, 5.0))
+        targets.append(plan.speed * (1 + plan.speed_swing * rng.uniform(-1, 1)))
+    # hold each target, with a smooth (raised-cosine) change over the first 1.5 s of its hold
+    v = np.full(len(t), plan.speed)
+    for k in range(1, len(times)):
+        ramp = 0.5 * (1 - np.cos(np.pi * np.clip((t - times[k]) / 1.5, 0, 1)))
+        v = np.where(t >= times[k], targets[k - 1] + (targets[k] - targets[k - 1]) * ramp, v)
+    return v
 
 
 def _lane_change_path(plan: Plan):

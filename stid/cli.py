@@ -55,6 +55,8 @@ def _print_load_warnings(runs) -> None:
     for r in runs:
         for w in r.meta.get("warnings", []):
             print(f"warning: {r.name}: {w}", file=sys.stderr)
+        for w in r.meta.get("notes", []):
+            print(f"note: {r.name}: {w}", file=sys.stderr)
 
 
 def _cmd_diagnose(args) -> int:

@@ -54,3 +54,50 @@ def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float):
     if mask.sum() < 0.5 * fs:
         return None
     return float(np.mean(r[mask]))
+
+
+STEER_T_UNKNOWN = 0xFFFFFFFF  # a v1 record: the pulse's time was not logged
+
+
+def steer_at_servo_times(t_mcu_us: np.ndarray, t_raw_us: np.ndarray, steer_us: np.ndarray,
+                         steer_t_us: np.ndarray, vehicle: Vehicle, mod: int, grid_us: np.ndarray,
+                         step_us: float):
+    """The steering command as the servo received it, on the sample grid ``grid_us``.
+
+    The servo takes each command at its pulse's falling edge and holds it until the
+    next: the road wheel is driven by a staircase whose steps sit at the edges. A
+    sample records the latest pulse *at the sample instant*, which places every step
+    up to one sample period late (on average half a period, and a fixed amount when
+    pulses and sampling happen to be phase-locked); yaw inertia moves ~5% per ms of
+    steer timing. Protocol v2 logs each pulse's falling-edge time, so the staircase
+    is rebuilt exactly and each grid value is its mean over the sample period centred
+    on the grid point: a symmetric (delay-free) average that the models'
+    first-order-hold input represents without a timing error.
+
+    Returns (steer [rad] or NaN where no pulse was received, True when edge times
+    were used).
+    """
+    us = np.asarray(steer_us, float)
+    t_fall = np.asarray(steer_t_us, np.int64)
+    ok = (us > 0) & (t_fall != STEER_T_UNKNOWN)
+    if not ok.any():
+        return None, False
+    age = (np.asarray(t_raw_us, np.int64) - t_fall) % mod
+    fall = np.asarray(t_mcu_us, np.int64) - age
+    # one event per pulse: its fall time and command
+    f, first = np.unique(fall[ok], return_index=True)
+    c = ((us[ok] - vehicle.steer_center_us) / vehicle.steer_us_per_rad)[first]
+    # cumulative integral of the staircase at the events; value held after the last one,
+    # and the first command extended back to the start
+    cum = np.concatenate([[0.0], np.cumsum(c[:-1] * np.diff(f))])
+
+    def integral(t):
+        j = np.clip(np.searchsorted(f, t, side="right") - 1, 0, len(f) - 1)
+        return cum[j] + c[j] * (t - f[j])
+
+    g = np.asarray(grid_us, float)
+    h = float(step_us)
+    steer = (integral(g + h / 2) - integral(g - h / 2)) / h
+    # no pulse for longer than the receiver's timeout at a sample: NaN there, as before
+    no_pulse = np.interp(g, np.asarray(t_mcu_us, float), (~(us > 0)).astype(float)) > 0.5
+    return np.where(no_pulse, np.nan, steer), True

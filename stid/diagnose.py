@@ -200,7 +200,9 @@ def _cost(model, stretches, p, sigma, discard_s=0.5):
     c = 0.0
     for st in stretches:
         k = (st.t - st.t[0]) >= discard_s
-        c += float(np.sum(((model.simulate(p, st.steer, st.dt, st.vx)[k] - st.y[k]) / sigma) ** 2))
+        if st.valid is not None:
+            k &= st.valid
+        c += float(np.sum(((model.simulate(p, st.steer, st.dt, st.vx_series, sensors=st.sensors)[k] - st.y[k]) / sigma) ** 2))
     return c
 
 

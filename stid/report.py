@@ -102,7 +102,7 @@ def bode_figure(chain, stretches, vehicle):
             axes[2, j].semilogx(fr.f, fr.coh[j], color=col, lw=1)
             for (name, res), ls in zip((chain[0], chain[-1]), (":", "-")):
                 model = Model(name, vehicle)
-                H = model.freqresp(res.all_params(), fr.f, st.vx)[j]
+                H = model.freqresp(res.all_params(), fr.f, st.vx, st.sensors)[j]
                 axes[0, j].loglog(fr.f, np.abs(H), ls, color=col, lw=1.2,
                                   label=name if k == 0 else None)
                 axes[1, j].semilogx(fr.f, np.degrees(np.unwrap(np.angle(H))), ls, color=col, lw=1.2)

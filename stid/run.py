@@ -27,6 +27,9 @@ class Run:
         Any other columns (kept, ignored by the models).
     meta : dict
         Source, calibration used, warnings raised while loading.
+    valid : ndarray of bool or None
+        False at samples that were not measured (lost on the link) and only hold
+        the grid's place; None when every sample is a measurement.
     """
 
     name: str
@@ -39,6 +42,7 @@ class Run:
     beta: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    valid: np.ndarray | None = None
 
     @property
     def fs(self) -> float:
@@ -59,7 +63,7 @@ class Run:
         cut = lambda x: None if x is None else x[i0:i1]  # noqa: E731
         return Run(name or self.name, self.t[i0:i1], self.steer[i0:i1], self.ay[i0:i1], self.r[i0:i1],
                    self.vx[i0:i1], cut(self.ax), cut(self.beta), {k: v[i0:i1] for k, v in self.extra.items()},
-                   dict(self.meta))
+                   dict(self.meta), None if self.valid is None else self.valid[i0:i1])
 
     def warn(self, text: str) -> None:
         self.meta.setdefault("warnings", []).append(text)

@@ -1,5 +1,11 @@
-"""Turn runs into what the fits use: constant-speed stretches for the dynamic
-fits (start-up trimmed, decimated to ~200 Hz) and averaged steady-state points."""
+"""Turn runs into what the fits use: stretches where the car moves (any speed
+profile: the time-domain fit simulates with the measured speed), constant-speed
+stretches for the methods that need one speed (frequency responses), both
+prefiltered and decimated to ~200 Hz, and averaged steady-state points.
+
+Samples lost on the link are never data: a run carries a ``valid`` mask, and
+every decimated sample whose prefilter window reaches a lost sample is left out
+of the cost (the simulation runs through with the input interpolated)."""
 
 from __future__ import annotations
 
@@ -14,6 +20,14 @@ from stid.run import Run
 
 TARGET_FS = 200.0
 MIN_STRETCH_S = 3.0
+# Below this the single track is not the car's model (kinematic steering, slip angles
+# from noise); standing still and reversing are left out too.
+V_MOVING = 1.0  # m/s
+# A lost raw sample spoils the prefiltered output within the filter's reach: the
+# zero-phase 4th-order 20 Hz Butterworth's impulse response falls below 5% of its
+# peak 30 ms from its centre (the interpolated value it smears differs from the
+# truth by a few % of the signal, so the error left beyond is < 0.2%).
+GAP_REACH_S = 0.03
 # Input and outputs are low-passed by the same zero-phase filter before fitting (an
 # output-error prefilter: for a linear model, filtering both leaves the input-output
 # relation unchanged). It removes what the model should not chase: the 50 Hz steps of
@@ -30,8 +44,10 @@ class Stretch:
     steer: np.ndarray
     ay: np.ndarray
     r: np.ndarray
-    vx_series: np.ndarray
-    vx: float
+    vx_series: np.ndarray  # measured speed at every sample [m/s]: the model runs at it
+    vx: float  # median speed [m/s], for labels and per-speed grouping
+    valid: np.ndarray | None = None  # False where an output sample is not a measurement
+    sensors: dict | None = None  # the sensor chain the outputs went through (stid.sensor_chain)
 
     @property
     def dt(self) -> float:
@@ -55,7 +71,8 @@ def prefilter(x: np.ndarray, fs: float, f_hz: float = PREFILTER_HZ) -> np.ndarra
 
 def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", "vx")):
     """Prefilter and decimate whole signals of a run (so stretches cut from them carry
-    no filter edge transients): (decimation factor, dict of arrays, time)."""
+    no filter edge transients): (decimation factor, dict of arrays, time). The dict
+    holds ``valid`` too: False where the prefilter reaches a lost sample."""
     fs = run.fs
     q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
     out = {}
@@ -63,39 +80,94 @@ def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", 
         x = getattr(run, n) if hasattr(run, n) and getattr(run, n) is not None else run.extra[n]
         out[n] = _decimate(prefilter(x, fs), q)
     m = min(len(v) for v in out.values())
-    return q, {k: v[:m] for k, v in out.items()}, run.t[::q][:m]
+    out = {k: v[:m] for k, v in out.items()}
+    valid = np.ones(len(run.t), bool) if run.valid is None else np.asarray(run.valid, bool)
+    if not valid.all():
+        reach = int(np.ceil(GAP_REACH_S * fs)) + (10 * q if q > 1 else 0)  # + decimating FIR's half length
+        lost = (~valid).astype(float)
+        valid = segments.uniform_filter1d(lost, 2 * reach + 1) == 0.0
+    out["valid"] = valid[::q][:m]
+    return q, out, run.t[::q][:m]
+
+
+class Stretches(list):
+    """The stretches of some runs, with notes on what was left out and why."""
+
+    notes: list
+
+    def __init__(self, items=(), notes=None):
+        super().__init__(items)
+        self.notes = list(notes or [])
 
 
 def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: float = TARGET_FS,
-                      trim_s: float = 0.5) -> list[Stretch]:
-    """Constant-speed stretches of every run, for the frequency- and time-domain fits."""
+                      trim_s: float = 0.5, constant_speed: bool = False, method: str = "") -> Stretches:
+    """Stretches of every run for the dynamic fits.
+
+    By default every stretch where the car moves forward faster than ``V_MOVING`` for
+    at least ``min_s`` (the time-domain fit follows the measured speed). With
+    ``constant_speed`` only stretches whose speed stays within +-5% of their own: the
+    frequency-response methods (named by ``method`` in messages) need one speed.
+    """
     out = []
     reasons = []
+    notes = []
     for run in runs:
         fs = run.fs
-        found = segments.constant_speed(run.vx, fs, min_s=min_s + 2 * trim_s)
+        if constant_speed:
+            found = segments.constant_speed(run.vx, fs, min_s=min_s + 2 * trim_s)
+            what = "at constant speed"
+        else:
+            found = segments.runs_of(run.vx > V_MOVING, int((min_s + 2 * trim_s) * fs))
+            what = f"moving faster than {V_MOVING:g} m/s"
+            left = float(np.sum(run.vx <= V_MOVING)) / fs
+            back = float(np.sum(run.vx < -0.05)) / fs
+            if left > 0.5:
+                notes.append(f"{run.name}: {left:.1f} s standing still or slower than {V_MOVING:g} m/s"
+                             + (f" ({back:.1f} s of it reversing)" if back > 0.1 else "")
+                             + " left out of the dynamic fit")
         if not found:
-            reasons.append(f"{run.name}: no stretch of at least {min_s + 2 * trim_s:.0f} s at constant speed")
+            reasons.append(f"{run.name}: no stretch of at least {min_s + 2 * trim_s:.0f} s {what}")
             continue
         q, sig, t = filtered(run, target_fs)
         for k, (a, b) in enumerate(found):
             a = (a + int(trim_s * fs)) // q
             b = min((b - int(trim_s * fs)) // q, len(t))
             sl = slice(a, b)
+            valid = sig["valid"][sl]
             out.append(Stretch(name=run.name if len(found) == 1 else f"{run.name}[{k + 1}]", t=t[sl],
-                               steer=sig["steer"][sl], ay=sig["ay"][sl], r=sig["r"][sl], vx_series=sig["vx"][sl],
-                               vx=float(np.median(run.vx[a * q:b * q]))))
+                               steer=sig["steer"][sl], ay=sig["ay"][sl], r=sig["r"][sl],
+                               vx_series=np.maximum(sig["vx"][sl], 0.5 * V_MOVING),
+                               vx=float(np.median(run.vx[a * q:b * q])),
+                               valid=None if valid.all() else valid,
+                               sensors=run.meta.get("sensor_chain")))
     if not out:
-        raise InputError("no run has a constant-speed stretch to fit the dynamics to ("
-                         + "; ".join(reasons) + "). Drive random steer or a lane change at constant "
-                         "speed, or use --method steady for steady-state circles")
+        if constant_speed:
+            raise InputError(f"the {method or 'frequency-response'} method needs stretches at one constant "
+                             "speed, and no run has one (" + "; ".join(reasons) + "). Use --method time, "
+                             "which follows the measured speed, or drive at constant speed")
+        raise InputError("no run has a stretch where the car moves to fit the dynamics to ("
+                         + "; ".join(reasons) + "). Drive random steer or a lane change, "
+                         "or use --method steady for steady-state circles")
     # a stretch of constant steer (a steady circle) holds no dynamic information, only model error
     moving = [s for s in out if np.std(s.steer) >= np.radians(0.1)]
     if not moving:
-        raise InputError("the steer is (nearly) constant in every constant-speed stretch: it does not excite "
+        raise InputError("the steer is (nearly) constant in every stretch: it does not excite "
                          "the dynamics, so no dynamic parameter can be identified. Drive random steer "
                          "(1-4 deg) or a lane change")
-    return moving
+    if len(moving) < len(out):
+        notes.append(f"{len(out) - len(moving)} stretch(es) with (nearly) constant steer left out of the "
+                     "dynamic fit (no dynamic information)")
+    from stid.sensor_chain import describe
+
+    chains = {describe(s.sensors) for s in moving}
+    notes.extend(sorted(chains))
+    lost = sum(int((~s.valid).sum()) for s in moving if s.valid is not None)
+    if lost:
+        total = sum(len(s.t) for s in moving)
+        notes.append(f"{100 * lost / total:.1f}% of the fitted samples are out of the cost: lost on the link "
+                     f"(or within {1e3 * GAP_REACH_S:.0f} ms of a loss, where the prefilter smears it)")
+    return Stretches(moving, notes)
 
 
 def check_excitation(stretches: list[Stretch]) -> list[str]:

@@ -27,7 +27,7 @@ from stid.fit import checks
 def frf_residual(model, p: dict, frfs: list[FRF], weighting: str) -> np.ndarray:
     out = []
     for fr in frfs:
-        Hm = model.freqresp(p, fr.f, fr.vx)
+        Hm = model.freqresp(p, fr.f, fr.vx, getattr(fr, "sensors", None))
         e = Hm - fr.H
         if weighting == "wls":
             w = 1.0 / np.sqrt(fr.variance())
@@ -65,7 +65,7 @@ def fit_freq(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                         "offsets are removed before spectra are taken): not identifiable by this method; "
                         "use --method time")
     cov = to_physical(covariance_white(res.jac, res.fun, len(space.free)), space, res.x)
-    preds = [Prediction(s.name, s.t, s.steer, s.y, model.simulate(p_hat, s.steer, s.dt, s.vx), s.vx,
+    preds = [Prediction(s.name, s.t, s.steer, s.y, model.simulate(p_hat, s.steer, s.dt, s.vx_series, sensors=s.sensors), s.vx,
                         _keep(s, 0.5)) for s in stretches]
     result = make_result(model, method_name or f"freq ({weighting})", space, p_hat, cov, preds)
     result.extra["frfs"] = frfs

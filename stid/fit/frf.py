@@ -60,4 +60,6 @@ def estimate_frf(st: Stretch, seg_s: float | None = None, f_min: float = 0.2, f_
     hi = f_max if f_max is not None else fs / 4
     band = (f >= max(f_min, 2 * fs / nperseg)) & (f <= hi) & excited
     n_avg = max(1, int(2 * n / nperseg) - 1)  # 50% overlap
-    return FRF(st.name, st.vx, f[band], H[:, band], coh[:, band], n_avg, fs)
+    out = FRF(st.name, st.vx, f[band], H[:, band], coh[:, band], n_avg, fs)
+    out.sensors = st.sensors  # the chain the measured responses went through
+    return out

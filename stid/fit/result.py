@@ -48,6 +48,7 @@ class FitResult:
     n: int = 0  # residuals in the likelihood
     loglik: float = float("nan")
     warnings: list = field(default_factory=list)
+    notes: list = field(default_factory=list)  # what the data selection left out, what was assumed
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
 
@@ -96,6 +97,10 @@ class FitResult:
         if text not in self.warnings:
             self.warnings.append(text)
 
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+
     # -- presentation ------------------------------------------------------
     def to_json(self) -> dict:
         params = {}
@@ -108,7 +113,7 @@ class FitResult:
                 "fit": {k: round(float(v), 2) for k, v in self.fit.items()},
                 "correlation": {"params": list(self.names), "matrix": np.round(self.corr, 4).tolist()},
                 "aic": float(self.aic), "bic": float(self.bic), "n": int(self.n),
-                "warnings": list(self.warnings)}
+                "warnings": list(self.warnings), "notes": list(self.notes)}
 
     def table(self) -> str:
         lines = [f"model {self.model}   method {self.method}   "
@@ -132,6 +137,8 @@ class FitResult:
                       if abs(c[i, j]) > 0.8]
             if strong:
                 lines.append("  strongly correlated: " + ", ".join(f"{a}-{b} {r:+.2f}" for a, b, r in strong))
+        for w in self.notes:
+            lines.append(f"  note: {w}")
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)

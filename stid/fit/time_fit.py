@@ -24,11 +24,13 @@ OUTPUTS = ("ay", "r")
 
 
 def _keep(st: Stretch, discard_s: float) -> np.ndarray:
-    return (st.t - st.t[0]) >= discard_s
+    keep = (st.t - st.t[0]) >= discard_s
+    return keep if st.valid is None else keep & st.valid
 
 
 def simulate(model, p: dict, st: Stretch) -> np.ndarray:
-    return model.simulate(p, st.steer, st.dt, st.vx)
+    """The model driven by the stretch's steer at its measured speed (varying or not)."""
+    return model.simulate(p, st.steer, st.dt, st.vx_series, sensors=st.sensors)
 
 
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
@@ -107,6 +109,8 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     result.extra["sigma"] = np.asarray(sigma, float)
     for w in warnings:
         result.warn(w)
+    for note in getattr(stretches, "notes", []):
+        result.note(note)
     for n in space.at_bound(res.x):
         result.warn(f"{n} stopped at its bound ({p_hat[n]:.4g} {model.param(n).unit}): the data push it "
                     "outside the plausible range, or the model lacks an effect")

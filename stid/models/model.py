@@ -55,11 +55,13 @@ class Model:
         self._ordered = sorted(self.effects, key=lambda e: _STAGE_ORDER[e.stage])
         self._warm: dict = {}  # last converged force correction per steer history (nonlinear effects)
         self.converged = True
-        # Known sensor bandwidths are part of the measurement, not effects to discover:
-        # ADXL335 with 0.1 uF output capacitors: 50 Hz; LISY300AL internal filter: 88 Hz.
-        sensors = getattr(vehicle, "sensors", {}) or {}
-        self.sensor_bandwidth = {"ay": float(sensors.get("accel_bandwidth_hz", 50.0)),
-                                 "r": float(sensors.get("gyro_bandwidth_hz", 88.0))}
+        # The sensors' output filters are part of the measurement, not effects to discover.
+        # They come with the data (stid.sensor_chain; a stretch passes its own chain to
+        # simulate/build); this default is the vehicle file's [sensors], else none.
+        from stid import sensor_chain
+
+        chain = sensor_chain.for_csv(vehicle)
+        self.sensor_bandwidth = {"ay": chain["ay"], "r": chain["r"]}
 
     @property
     def name(self) -> str:
@@ -93,8 +95,10 @@ class Model:
     def nonlinear(self) -> bool:
         return any(e.nonlinear for e in self.effects)
 
-    def build(self, p: dict, vx: float):
-        """The linear(ised) state-space system at speed vx."""
+    def build(self, p: dict, vx: float, sensors: dict | None = None):
+        """The linear(ised) state-space system at speed vx, its ay and r outputs passed
+        through the sensor chain ``sensors`` ({"ay": Hz, "r": Hz}, 0 = no filter; default
+        the model's own)."""
         ctx = self.context(vx)
         opts = {}
         for e in self._ordered:
@@ -104,20 +108,38 @@ class Model:
         for e in self._ordered:
             if e.stage in ("input", "output"):
                 sys = e.apply(sys, p, ctx)
-        for out, f in self.sensor_bandwidth.items():
+        for out in MEASURED:
+            f = float((self.sensor_bandwidth if sensors is None else sensors).get(out, 0.0) or 0.0)
             if 0 < f < float("inf"):
                 sys = sys.filter_output(out, f)
         return sys
 
-    def freqresp(self, p: dict, f_hz: np.ndarray, vx: float) -> np.ndarray:
+    def freqresp(self, p: dict, f_hz: np.ndarray, vx: float, sensors: dict | None = None) -> np.ndarray:
         """Responses of (ay, r) to steer at f_hz, linearised at straight running: (2, n_f)."""
-        return self.build(p, vx).select(list(MEASURED)).freqresp(f_hz)
+        return self.build(p, vx, sensors).select(list(MEASURED)).freqresp(f_hz)
 
-    def simulate(self, p: dict, steer: np.ndarray, dt: float, vx: float, outputs=MEASURED,
-                 max_iter: int = 80, tol: float = 1e-9) -> np.ndarray:
-        """Measured outputs for a steer history (n_t,) at constant speed: (n_t, len(outputs)).
+    def simulator(self, p: dict, vx, dt: float, outputs, inputs, sensors: dict | None = None):
+        """``sim(u) -> y`` for inputs u (n_t, len(inputs)) sampled at dt.
 
-        Linear models are one vectorised filter pass. With a nonlinear tyre effect the
+        ``vx`` is one speed [m/s] (a linear time-invariant system, filtered by scipy) or
+        the measured speed at every sample (a linear parameter-varying system,
+        ``stid.models.lpv``): a run need not hold its speed.
+        """
+        v = np.asarray(vx, float)
+        if v.ndim == 0 or (len(v) and np.ptp(v) == 0.0):
+            v0 = float(v) if v.ndim == 0 else float(v[0])
+            return self.build(p, v0, sensors).simulator(dt, list(outputs), list(inputs))
+        from stid.models.lpv import LpvSimulator
+
+        return LpvSimulator(lambda s: self.build(p, s, sensors), v, dt, outputs, inputs)
+
+    def simulate(self, p: dict, steer: np.ndarray, dt: float, vx, outputs=MEASURED,
+                 max_iter: int = 80, tol: float = 1e-9, sensors: dict | None = None) -> np.ndarray:
+        """Measured outputs for a steer history (n_t,): (n_t, len(outputs)).
+
+        ``vx`` is a constant speed or the speed at every sample [m/s]. Linear models
+        are one vectorised filter pass (constant speed) or one compiled time-varying
+        recursion (varying speed). With a nonlinear tyre effect the
         whole trajectory is iterated (waveform relaxation): simulate, compute the force
         correction from the slip angles, simulate again with it as an input. Anderson
         acceleration makes that converge in a few passes, and the last solution for the
@@ -126,19 +148,30 @@ class Model:
         the last iterate is returned and ``self.converged`` is False: its poor fit
         steers the optimiser away.
         """
-        sys = self.build(p, vx)
         if not self.nonlinear:
-            return sys.simulator(dt, list(outputs), ["delta"])(steer)
-        ctx = self.context(vx)
+            return self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)(steer)
+        v = np.asarray(vx, float)
+        ctx = self.context(float(np.median(v)) if v.ndim else float(v))
         outs = list(outputs)
         n = len(steer)
         # the steer's part is fixed; each pass only needs the slip angles' response
-        # to the force correction (4 filters instead of 12)
-        base = sys.simulator(dt, outs + ["alpha_f", "alpha_r"], ["delta"])(steer)
-        slip_of_force = sys.simulator(dt, ["alpha_f", "alpha_r"], ["dFf", "dFr"])
+        # to the force correction
+        sim = self.simulator(p, vx, dt, outs + ["alpha_f", "alpha_r"], ["delta", "dFf", "dFr"], sensors)
+        zeros = np.zeros(n)
+        base = sim(np.column_stack([steer, zeros, zeros]))
+        no = len(outs)
+
+        if v.ndim == 0 or np.ptp(v) == 0.0:  # constant speed: scipy filters, only the pairs needed
+            slip_sim = self.simulator(p, vx, dt, ["alpha_f", "alpha_r"], ["dFf", "dFr"], sensors)
+
+            def slip_of_force(f):
+                return slip_sim(f)
+        else:
+            def slip_of_force(f):
+                return sim(np.column_stack([zeros, f]))[:, no:]
         Fzf, Fzr = ctx.axle_loads()
         scale = tol * min(Fzf, Fzr)
-        key = (n, float(steer[0]), float(steer[n // 2]), float(vx))
+        key = (n, float(steer[0]), float(steer[n // 2]), float(v.ravel()[0]), float(v.ravel()[-1]))
         x = self._warm.get(key)
         x = np.zeros(2 * n) if x is None else x.copy()
 
@@ -175,4 +208,4 @@ class Model:
         x = gx
         if self.converged:
             self._warm[key] = x
-        return base[:, : len(outs)] + sys.simulator(dt, outs, ["dFf", "dFr"])(x.reshape(n, 2))
+        return base[:, :no] + sim(np.column_stack([zeros, x.reshape(n, 2)]))[:, :no]

@@ -1,0 +1,71 @@
+"""The measurement chain that comes with the data: each sensor's output filter.
+
+The ADXL335's bandwidth is set by its output capacitors (5 uF / C: 0.1 uF gives
+50 Hz) and the LISY300AL has an internal low-pass (88 Hz); another logger's data
+may have been filtered differently, or not at all. The model must filter its
+outputs exactly as the data were filtered, so the chain is never assumed:
+
+- an MCAP run takes each channel's ``bandwidth_hz`` from its HELLO (protocol v2);
+  a v1 HELLO declares only the part numbers, so the parts' usual bandwidths are
+  taken, and the note says so;
+- the vehicle file's ``[sensors]`` ``accel_bandwidth_hz`` / ``gyro_bandwidth_hz``
+  override either (0 means no filter);
+- a CSV with neither has no sensor filter.
+
+A chain is ``{"ay": Hz or 0, "r": Hz or 0, "source": "..."}``; 0 means no filter.
+"""
+
+from __future__ import annotations
+
+# what a v1 HELLO's part numbers imply: ADXL335 with the usual 0.1 uF; LISY300AL's own filter
+PART_BANDWIDTH_HZ = {"ADXL335": 50.0, "LISY300AL": 88.0}
+VEHICLE_KEYS = {"ay": "accel_bandwidth_hz", "r": "gyro_bandwidth_hz"}
+HELLO_CHANNELS = {"ay": "ay", "r": "yaw"}
+
+
+def _override(chain: dict, vehicle) -> dict:
+    sensors = getattr(vehicle, "sensors", None) or {}
+    used = [k for k in VEHICLE_KEYS.values() if k in sensors]
+    for out, key in VEHICLE_KEYS.items():
+        if key in sensors:
+            chain[out] = max(float(sensors[key]), 0.0)
+    if used:
+        chain["source"] = (chain["source"] + "; " if chain.get("source") else "") + \
+            f"vehicle file [sensors] {', '.join(used)}"
+    return chain
+
+
+def from_hello(hello: dict, vehicle) -> dict:
+    chain = {"ay": 0.0, "r": 0.0}
+    declared, assumed = [], []
+    channels = hello.get("channels") or {}
+    for out, ch in HELLO_CHANNELS.items():
+        c = channels.get(ch) or {}
+        if c.get("bandwidth_hz") is not None:
+            chain[out] = float(c["bandwidth_hz"])
+            declared.append(out)
+        elif c.get("part") in PART_BANDWIDTH_HZ:
+            chain[out] = PART_BANDWIDTH_HZ[c["part"]]
+            assumed.append(f"{out} ({c['part']})")
+    src = []
+    if declared:
+        src.append("HELLO bandwidth_hz")
+    if assumed:
+        src.append("the parts' usual bandwidth for " + ", ".join(assumed) + " (this HELLO declares none)")
+    chain["source"] = "; ".join(src) or "none declared"
+    return _override(chain, vehicle)
+
+
+def for_csv(vehicle) -> dict:
+    return _override({"ay": 0.0, "r": 0.0, "source": "CSV: none declared"}, vehicle)
+
+
+def describe(chain: dict | None) -> str:
+    """One line: the filters the model applies to its outputs, and where they come from."""
+    if not chain:
+        return "sensor chain: no output filter"
+
+    def one(out):
+        f = chain.get(out, 0.0)
+        return f"{out} first-order {f:g} Hz" if f and f > 0 else f"{out} unfiltered"
+    return f"sensor chain: {one('ay')}, {one('r')} (from {chain.get('source', '?')})"
