@@ -10,14 +10,16 @@ import numpy as np
 from host.errors import HostError
 from host.mcap_read import read_log
 from host import units
-from stid import convert
+from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
 from stid.run import Run
 from stid.vehicle_file import Vehicle, default_vehicle
 
 REQUIRED = ("t", "steer", "ay", "r", "vx")
 OPTIONAL = ("ax", "beta", "delta_cmd", "w_fl", "w_fr", "w_rl", "w_rr")
-MAX_FILLED_GAP_S = 0.1  # lost frames up to this long are interpolated; longer gaps split the run
+# Lost frames up to this long are marked (``Run.valid``) and left out of every cost, the
+# model running through them; a longer gap splits the run (the input there is unknown).
+MAX_FILLED_GAP_S = 0.1
 MIN_SAMPLES = 20
 
 # Beyond these a value is not physical for a scale car in SI units: most likely degrees.
@@ -47,7 +49,9 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     if path.suffix.lower() == ".mcap":
         raise InputError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic at its start): "
                          "corrupted, or not written by stid-log")
-    return [load_csv(path)]
+    run = load_csv(path)
+    run.meta["sensor_chain"] = sensor_chain.for_csv(vehicle)
+    return [run]
 
 
 # -- CSV ------------------------------------------------------------------------
@@ -83,6 +87,7 @@ def load_csv(path) -> Run:
     if np.any(dt <= 0):
         raise InputError(f"{path}: time 't' is not increasing (row {int(np.flatnonzero(dt <= 0)[0]) + 2}); "
                          "sort the rows or remove duplicates")
+    input_checks.check_time_steps(str(path), t)
     med = float(np.median(dt))
     if np.max(np.abs(dt - med)) > 0.05 * med:
         tu = t[0] + med * np.arange(int(round((t[-1] - t[0]) / med)) + 1)
@@ -101,6 +106,7 @@ def load_csv(path) -> Run:
               meta={"source": str(path), "format": "csv"})
     for w in warnings:
         run.warn(w)
+    input_checks.check_kinematics(run, source="csv")
     return run
 
 
@@ -138,6 +144,8 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
         for r in runs:
             r.warn(f"{Path(path).name} was cut short (logger killed?): read up to its last complete chunk; "
                    f"'stid repair' makes it a complete file")
+    for r in runs:
+        input_checks.check_kinematics(r, source="mcap")
     return runs
 
 
@@ -169,15 +177,33 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     sig = {"steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax}
     if not np.all(np.isnan(az)):
         sig["az"] = az
+    valid = None
     if filled:
+        # the grid needs a value at every place; these hold it, and are marked not measured
         sig = {k: np.interp(tu, t_us, v) for k, v in sig.items()}
+        valid = np.zeros(len(tu), bool)
+        valid[np.clip(np.round((t_us - tu[0]) / step).astype(np.int64), 0, len(tu) - 1)] = True
+    timed = False
+    if "steer_t_us" in (s.dtype.names or ()):
+        exact, timed = convert.steer_at_servo_times(t_us, s["t_us"], s["steer_us"], s["steer_t_us"], vehicle,
+                                                    int(hello.get("mod", 1 << 30)), tu, step)
+        if timed:
+            sig["steer"] = np.where(np.isnan(exact), 0.0, exact)
     t = (tu - tu[0]) * 1e-6
     fs = 1e6 / step
     run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig["ax"],
               extra={k: v for k, v in sig.items() if k == "az"},
-              meta={"source": source, "format": "mcap", "hello": hello, "fs": fs})
+              meta={"source": source, "format": "mcap", "hello": hello, "fs": fs,
+                    "sensor_chain": sensor_chain.from_hello(hello, vehicle)},
+              valid=valid)
+    run.meta["steer_timing"] = "servo pulse edges" if timed else "sample instants"
+    if not timed:
+        run.meta.setdefault("notes", []).append(
+            "steer timed at the sample instants (this log does not carry the servo pulses' edge times, "
+            "protocol v1): each steering step sits up to one sample period late")
     if filled:
-        run.warn(f"{filled} samples missing (lost frames) were interpolated")
+        run.meta.setdefault("notes", []).append(
+            f"{filled} samples lost on the link ({100 * filled / len(tu):.1f}%): left out of every fit")
     if no_pulse.mean() > 0.01:
         run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): steer taken as 0 there")
     clip = units.clipped(s["ay"], hello) | units.clipped(s["ax"], hello)

@@ -23,10 +23,16 @@ gyro_bandwidth_hz = 88.0          # LISY300AL internal low-pass
 [params]              # initial values / bounds of model parameters, e.g.
 Cf = { init = 400.0, min = 20.0, max = 5000.0 }
 ```
+
+``gyro_v_per_dps`` (gyro sensitivity [V per deg/s]) may also be set in ``[sensors]``.
+A sensor bandwidth of 0 means no filter. ``[params]`` names parameters of the base
+models (``Cf``, ``Cr``, ``Iz``; greybox ``Cx``, ``Cy``, ``CA``) or of a registered
+effect. Any other key or table is an error that names it and the nearest known key.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -70,6 +76,84 @@ def _number(doc, key, where, positive=True):
     return float(v)
 
 
+# Every key the code reads (stid/convert.py, calibrate.py, models/, fit/, plan.py, cli.py).
+# A key nobody reads would be silently ignored, so it is an error instead.
+TOP_KEYS = ("name", "mass", "a", "b")
+TABLES = {
+    "steering": ("center_us", "us_per_rad"),
+    "wheel": ("radius", "pulses_per_rev"),
+    "sensors": ("accel_offset", "gyro_zero_v", "gyro_v_per_dps", "mount_roll", "mount_pitch",
+                "accel_bandwidth_hz", "gyro_bandwidth_hz"),
+    "params": None,  # model parameter names: checked against the models (_check_params)
+}
+PARAM_SPEC_KEYS = ("init", "min", "max")
+_NONNEGATIVE = ("accel_bandwidth_hz", "gyro_bandwidth_hz")  # Hz; 0 = no filter
+
+
+def _unknown(where, what, key, known, inside="") -> InputError:
+    near = difflib.get_close_matches(key, known, n=1)
+    todo = f"did you mean '{near[0]}'?" if near else "rename or remove it"
+    inside = f" in {inside}" if inside else ""
+    return InputError(f"{where}: unknown {what} '{key}'{inside}: {todo} (known {what}s: {', '.join(known)})")
+
+
+def _check_keys(doc, where) -> None:
+    for key, value in doc.items():
+        if key in TABLES:
+            if not isinstance(value, dict):
+                raise InputError(f"{where}: '{key}' must be a table ([{key}]), got {value!r}")
+            continue
+        if key not in TOP_KEYS:
+            if isinstance(value, dict):
+                raise _unknown(where, "table", f"[{key}]", [f"[{t}]" for t in TABLES])
+            raise _unknown(where, "key", key, list(TOP_KEYS) + [f"[{t}]" for t in TABLES])
+    for table, keys in TABLES.items():
+        if keys is None or table not in doc:
+            continue
+        for key, value in doc[table].items():
+            if key not in keys:
+                raise _unknown(where, "key", key, list(keys), f"[{table}]")
+            if key == "accel_offset":
+                ok = isinstance(value, list) and len(value) == 3 and all(_is_number(x) for x in value)
+                if not ok:
+                    raise InputError(f"{where}: [sensors] accel_offset must be three numbers [x, y, z] in m/s^2, "
+                                     f"got {value!r}")
+            elif not _is_number(value):
+                raise InputError(f"{where}: [{table}] {key} must be a number, got {value!r}")
+            elif key in _NONNEGATIVE and value < 0:
+                raise InputError(f"{where}: [{table}] {key} must be 0 (no filter) or a bandwidth in Hz, got {value}")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_params(params: dict, where) -> None:
+    """[params] entries are model parameters: ``NAME = { init = .., min = .., max = .. }``."""
+    if not params:
+        return
+    # Imported only when a file has [params]: the model catalogue costs most of a second.
+    from stid.models.bicycle import BASE_PARAMS
+    from stid.models.effect import available_effects
+    from stid.models.greybox import GREYBOX_PARAMS
+
+    known = [p.name for p in BASE_PARAMS]
+    known += [p.name for p in GREYBOX_PARAMS if p.name not in known]
+    for cls in available_effects().values():
+        known += [p.name for p in cls.params if p.name not in known]
+    for name, spec in params.items():
+        if name not in known:
+            raise _unknown(where, "parameter", name, known, "[params]")
+        if not isinstance(spec, dict):
+            raise InputError(f"{where}: [params] {name} must be a table, e.g. {name} = {{ init = 1.0, min = 0.1, "
+                             f"max = 10.0 }}, got {spec!r}")
+        for key, value in spec.items():
+            if key not in PARAM_SPEC_KEYS:
+                raise _unknown(where, "key", key, list(PARAM_SPEC_KEYS), f"[params] {name}")
+            if not _is_number(value):
+                raise InputError(f"{where}: [params] {name}.{key} must be a number, got {value!r}")
+
+
 def load_vehicle(path) -> Vehicle:
     path = Path(path)
     if not path.exists():
@@ -79,6 +163,7 @@ def load_vehicle(path) -> Vehicle:
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"vehicle file {path} is not valid TOML: {e}") from None
     where = f"vehicle file {path}"
+    _check_keys(doc, where)
     mass = _number(doc, "mass", where)
     a = _number(doc, "a", where)
     b = _number(doc, "b", where)
@@ -95,6 +180,7 @@ def load_vehicle(path) -> Vehicle:
                 raw=doc)
     if v.steer_us_per_rad == 0:
         raise InputError(f"{where}: steering.us_per_rad must not be 0")
+    _check_params(v.params, where)
     return v
 
 

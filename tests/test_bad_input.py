@@ -1,0 +1,207 @@
+"""Wrong units, signs and keys are named, never fitted.
+
+The runs are made here from plain physics (a linear single-track model written in
+this file, not stid's), so the checks are tested against the physics they rely on.
+"""
+
+import math
+import subprocess
+
+import numpy as np
+import pytest
+from scipy import signal
+from scipy.integrate import solve_ivp
+
+from conftest import REPO, tool
+from stid.errors import InputError
+from stid.load import load_csv
+from stid.vehicle_file import load_vehicle
+
+VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
+M, A, B, CF, CR, IZ = 9.31, 0.2326, 0.2874, 400.0, 475.0, 0.25  # kg, m, m, N/rad per axle, N/rad, kg m^2
+FS = 100.0
+
+
+def bicycle_run(speed, duration=40.0, seed=0, steer_rms_deg=3.0, bandwidth_hz=3.0):
+    """t, steer, ay, r, vx of a linear single-track car driven by random steer (ISO 8855)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration, 1 / FS)
+    b, a = signal.butter(4, bandwidth_hz, fs=FS)
+    pad = int(5 * FS)  # the filter's start-up is cut off
+    steer = signal.lfilter(b, a, rng.standard_normal(len(t) + pad))[pad:]
+    steer *= math.radians(steer_rms_deg) / steer.std()
+    vx = speed(t) if callable(speed) else np.full(len(t), float(speed))
+
+    def forces(vy, r, d, v):
+        return CF * (d - (vy + A * r) / v), CR * (-(vy - B * r) / v)
+
+    def rhs(tt, x):
+        vy, r = x
+        v, d = np.interp(tt, t, vx), np.interp(tt, t, steer)
+        ff, fr = forces(vy, r, d, v)
+        return [(ff + fr) / M - v * r, (A * ff - B * fr) / IZ]
+
+    sol = solve_ivp(rhs, (t[0], t[-1]), [0.0, 0.0], t_eval=t, max_step=2 / FS, rtol=1e-6, atol=1e-9)
+    vy, r = sol.y
+    ff, fr = forces(vy, r, steer, vx)
+    return {"t": t, "steer": steer, "ay": (ff + fr) / M, "r": r, "vx": vx}
+
+
+def write_csv(path, cols):
+    names = list(cols)
+    np.savetxt(path, np.column_stack([cols[n] for n in names]), delimiter=",", header=",".join(names),
+               comments="", fmt="%.7g")
+    return path
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return bicycle_run(5.0, seed=1)
+
+
+@pytest.fixture(scope="module")
+def gentle():
+    """Slow, gentle steering: r stays below 15 deg/s, so r in deg/s passes the range check."""
+    return bicycle_run(5.0, seed=1, steer_rms_deg=0.5, bandwidth_hz=0.5)
+
+
+def with_noise(cols, seed=2):
+    """Sensor noise and offsets of the ADXL335 / LISY300AL class, plus engine vibration."""
+    rng = np.random.default_rng(seed)
+    n = len(cols["t"])
+    out = dict(cols)
+    out["r"] = cols["r"] + 0.03 + 0.01 * rng.standard_normal(n)  # 1.7 deg/s gyro bias, 0.6 deg/s noise
+    out["ay"] = cols["ay"] + 0.25 + 0.3 * rng.standard_normal(n)  # offset and vibration, m/s^2
+    out["vx"] = cols["vx"] + 0.05 * rng.standard_normal(n)
+    return out
+
+
+# -- clean data passes ----------------------------------------------------------
+
+@pytest.mark.parametrize("case", ["4 m/s", "6 m/s", "speed varying 3-6 m/s", "noise and gyro bias", "gentle"])
+def test_clean_runs_are_not_flagged(tmp_path, case):
+    cols = {"4 m/s": lambda: bicycle_run(4.0, seed=3),
+            "gentle": lambda: bicycle_run(5.0, seed=1, steer_rms_deg=0.5, bandwidth_hz=0.5),
+            "6 m/s": lambda: bicycle_run(6.0, seed=4),
+            "speed varying 3-6 m/s": lambda: bicycle_run(lambda t: 4.5 - 1.5 * np.cos(np.pi * t / 20), seed=5),
+            "noise and gyro bias": lambda: with_noise(bicycle_run(5.0, seed=6))}[case]()
+    run = load_csv(write_csv(tmp_path / "ok.csv", cols))
+    assert not run.meta.get("warnings"), run.meta.get("warnings")
+
+
+def test_straight_run_is_loaded_with_a_note_that_units_went_unchecked(tmp_path, clean):
+    cols = dict(clean, steer=0 * clean["steer"], ay=0.05 * np.sin(clean["t"]), r=0 * clean["r"])
+    run = load_csv(write_csv(tmp_path / "straight.csv", cols))
+    assert any("could not be checked" in w for w in run.meta["warnings"])
+
+
+# -- units and signs ------------------------------------------------------------
+
+CORRUPTIONS = {
+    "ay in g": (lambda c: dict(c, ay=c["ay"] / 9.81), ["'ay'", "in g", "9.81"]),
+    "r in deg/s": (lambda c: dict(c, r=np.degrees(c["r"])), ["'r'", "deg/s", "pi/180"]),
+    "ay in g and r in deg/s": (lambda c: dict(c, ay=c["ay"] / 9.81, r=np.degrees(c["r"])),
+                               ["'ay' and 'r'", "g and deg/s"]),
+    "vx in km/h": (lambda c: dict(c, vx=3.6 * c["vx"]), ["'vx'", "km/h"]),
+    "SAE yaw rate (z down)": (lambda c: dict(c, r=-c["r"]), ["'r'", "opposite sign", "negate r"]),
+    "SAE lateral acceleration (y right)": (lambda c: dict(c, ay=-c["ay"]), ["'ay'", "opposite sign", "negate ay"]),
+    "steer positive right": (lambda c: dict(c, steer=-c["steer"]), ["'steer'", "opposite sign", "negate steer"]),
+    "ay in g, SAE yaw rate": (lambda c: dict(c, ay=c["ay"] / 9.81, r=-c["r"]), ["'ay' looks like it is in g", "negate 'r'"]),
+}
+
+
+@pytest.mark.parametrize("case", list(CORRUPTIONS))
+def test_wrong_unit_or_sign_is_named(tmp_path, gentle, case):
+    corrupt, words = CORRUPTIONS[case]
+    with pytest.raises(InputError) as e:
+        load_csv(write_csv(tmp_path / "bad.csv", corrupt(gentle)))
+    msg = str(e.value)
+    assert "\n" not in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_wrong_unit_is_named_through_noise(tmp_path):
+    cols = with_noise(bicycle_run(4.0, seed=7))
+    with pytest.raises(InputError, match="'ay' looks like it is in g"):
+        load_csv(write_csv(tmp_path / "bad.csv", dict(cols, ay=cols["ay"] / 9.81)))
+
+
+@pytest.mark.parametrize("scale, unit, divisor", [(1e3, "milliseconds", "1000"), (1e6, "microseconds", "1e6")])
+def test_time_not_in_seconds_is_named(tmp_path, clean, scale, unit, divisor):
+    with pytest.raises(InputError) as e:
+        load_csv(write_csv(tmp_path / "t.csv", dict(clean, t=clean["t"] * scale)))
+    assert unit in str(e.value) and f"divide it by {divisor}" in str(e.value), str(e.value)
+
+
+def test_time_too_coarse_for_any_unit_is_refused(tmp_path, clean):
+    with pytest.raises(InputError, match="too slow"):
+        load_csv(write_csv(tmp_path / "t.csv", dict(clean, t=clean["t"] * 1e12)))
+
+
+def test_cli_names_the_problem_in_one_line(tmp_path, clean):
+    bad = write_csv(tmp_path / "bad.csv", dict(clean, ay=clean["ay"] / 9.81))
+    r = subprocess.run([tool("stid"), "fit", str(bad), "--vehicle", str(VEHICLE), "--model", "bicycle"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "'ay' looks like it is in g" in lines[0], r.stderr
+
+
+# -- vehicle file ---------------------------------------------------------------
+
+BASE = 'name = "car"\nmass = 9.31\na = 0.2326\nb = 0.2874\n'
+
+
+def vehicle_error(tmp_path, text):
+    v = tmp_path / "v.toml"
+    v.write_text(text)
+    with pytest.raises(InputError) as e:
+        load_vehicle(v)
+    return str(e.value)
+
+
+def test_misspelt_key_is_named_with_the_nearest_known_key(tmp_path):
+    msg = vehicle_error(tmp_path, 'name = "car"\nmass_kg = 9.31\na = 0.2326\nb = 0.2874\n')
+    assert "mass_kg" in msg and "did you mean 'mass'" in msg, msg
+
+
+def test_unknown_table_is_named(tmp_path):
+    msg = vehicle_error(tmp_path, BASE + "[tyres]\nmu = 0.9\n")
+    assert "[tyres]" in msg and "[sensors]" in msg, msg
+    msg = vehicle_error(tmp_path, BASE + "[sensor]\ngyro_zero_v = 1.65\n")
+    assert "did you mean '[sensors]'" in msg, msg
+
+
+def test_unknown_key_in_sensors_is_named(tmp_path):
+    msg = vehicle_error(tmp_path, BASE + "[sensors]\ngyro_bandwith_hz = 88.0\n")
+    assert "gyro_bandwith_hz" in msg and "[sensors]" in msg and "did you mean 'gyro_bandwidth_hz'" in msg, msg
+
+
+def test_unknown_model_parameter_is_named(tmp_path):
+    msg = vehicle_error(tmp_path, BASE + "[params]\nCff = { init = 400.0 }\n")
+    assert "Cff" in msg and "did you mean 'Cf'" in msg, msg
+    msg = vehicle_error(tmp_path, BASE + "[params]\nCf = { inti = 400.0 }\n")
+    assert "inti" in msg and "did you mean 'init'" in msg, msg
+
+
+def test_every_documented_key_loads(tmp_path):
+    """What `stid calibrate` writes, the sensor bandwidths, and parameters of the base and an effect."""
+    v = tmp_path / "v.toml"
+    v.write_text(BASE + "[steering]\ncenter_us = 1480.0\nus_per_rad = 1100.0\n"
+                 "[wheel]\nradius = 0.045\npulses_per_rev = 2\n"
+                 "[sensors]\naccel_offset = [0.01, -0.02, 0.1]\ngyro_zero_v = 1.66\ngyro_v_per_dps = 0.0033\n"
+                 "mount_roll = 0.01\nmount_pitch = -0.01\naccel_bandwidth_hz = 0\ngyro_bandwidth_hz = 88.0\n"
+                 "[params]\nCf = { init = 400.0, min = 20.0, max = 5000.0 }\ntau_steer = { init = 0.05 }\n")
+    veh = load_vehicle(v)
+    assert veh.sensors["accel_bandwidth_hz"] == 0 and veh.params["tau_steer"]["init"] == 0.05
+
+
+def test_negative_bandwidth_is_refused(tmp_path):
+    assert "gyro_bandwidth_hz" in vehicle_error(tmp_path, BASE + "[sensors]\ngyro_bandwidth_hz = -88.0\n")
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "docs" / "examples").glob("*.toml")), ids=lambda p: p.name)
+def test_example_vehicle_files_load(path):
+    assert load_vehicle(path).mass > 0
