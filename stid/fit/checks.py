@@ -8,8 +8,11 @@ import numpy as np
 
 def add_identifiability_warnings(result, model, stretches) -> None:
     names = [e.name for e in model.effects]
-    speeds = np.array([s.vx for s in stretches]) if stretches else np.array([])
-    one_speed = len(speeds) == 0 or speeds.max() / max(speeds.min(), 1e-9) < 1.3
+    # the speeds actually driven (a track run's speed swings within one stretch): 10th and
+    # 90th percentiles over all the data, so a brief excursion does not count as a second speed
+    allv = np.concatenate([np.asarray(s.vx_series if getattr(s, "vx_series", None) is not None else [s.vx])
+                           for s in stretches]) if stretches else np.array([])
+    one_speed = len(allv) == 0 or np.percentile(allv, 90) / max(np.percentile(allv, 10), 1e-9) < 1.3
     if "actuator_lag" in names and "tyre_relaxation" in names and one_speed:
         result.warn("servo lag and tyre relaxation cannot be told apart from one speed: relaxation lag "
                     "scales with 1/speed, servo lag does not. Add the same random steer at a second speed")

@@ -49,6 +49,8 @@ class FitResult:
     loglik: float = float("nan")
     warnings: list = field(default_factory=list)
     notes: list = field(default_factory=list)  # what the data selection left out, what was assumed
+    interval: str = ""  # which kind of 95% interval ci95 is (noise only, or with model error)
+    ci_dof: int | None = None  # degrees of freedom of the interval's t quantile (default n - k)
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
 
@@ -59,7 +61,7 @@ class FitResult:
 
     @property
     def ci95(self) -> np.ndarray:
-        dof = max(self.n - len(self.values), 1)
+        dof = self.ci_dof if self.ci_dof else max(self.n - len(self.values), 1)
         q = stdtrit(dof, 0.975)
         return np.column_stack([self.values - q * self.stderr, self.values + q * self.stderr])
 
@@ -113,6 +115,7 @@ class FitResult:
                 "fit": {k: round(float(v), 2) for k, v in self.fit.items()},
                 "correlation": {"params": list(self.names), "matrix": np.round(self.corr, 4).tolist()},
                 "aic": float(self.aic), "bic": float(self.bic), "n": int(self.n),
+                "interval": self.interval,
                 "warnings": list(self.warnings), "notes": list(self.notes)}
 
     def table(self) -> str:
@@ -137,6 +140,8 @@ class FitResult:
                       if abs(c[i, j]) > 0.8]
             if strong:
                 lines.append("  strongly correlated: " + ", ".join(f"{a}-{b} {r:+.2f}" for a, b, r in strong))
+        if self.interval:
+            lines.append(f"  {self.interval}")
         for w in self.notes:
             lines.append(f"  note: {w}")
         for w in self.warnings:

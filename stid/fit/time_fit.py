@@ -19,6 +19,7 @@ from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.result import FitResult, Prediction, fit_percent
 from stid.fit.solver import ParamSpace, starting_points, covariance_sandwich, least_squares, to_physical
 from stid.fit import checks
+from stid.fit import intervals as jk
 
 OUTPUTS = ("ay", "r")
 
@@ -36,7 +37,10 @@ def simulate(model, p: dict, st: Stretch) -> np.ndarray:
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
              discard_s: float = 0.5, multistart: bool | None = None, space: ParamSpace | None = None,
              method_name: str = "time", reweight: bool = True, sigma=None,
-             whiten: bool = False) -> FitResult:
+             whiten: bool = False, intervals: str = "noise") -> FitResult:
+    """Output-error fit. ``intervals``: ``"noise"`` (Newey-West sandwich: right about
+    noise) or ``"model-error"`` (also a delete-a-block jackknife, stid.fit.intervals: the
+    wider of the two, for results a user reads)."""
     fixed = dict(fixed or {})
     warnings = check_excitation(stretches)
     keeps = [_keep(s, discard_s) for s in stretches]
@@ -102,11 +106,36 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         r_blocks.append(r_all[pos:pos + m].reshape(-1, 2))
         pos += m
     cov = to_physical(covariance_sandwich(J_blocks, r_blocks), space, res.x)
+    interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
+    widened, jk_dof = [], None
+    if intervals == "model-error":
+        bm = jk.blocks(keeps, [st.dt for st in stretches])
+        row_block = np.full(len(res.fun), -1)
+        pos = 0
+        for i, k in enumerate(keeps):
+            m = int(k.sum())
+            for b, masks in enumerate(bm):
+                row_block[pos:pos + 2 * m] = np.where(np.repeat(masks[i][k], 2), b, row_block[pos:pos + 2 * m])
+            pos += 2 * m
+        cov_jx = jk.jackknife_cov(res.jac, res.fun, row_block, len(bm))
+        if cov_jx is None:
+            interval_note += f"; too little data for a model-error interval (needs {jk.K_MIN} blocks of " \
+                             f"{jk.BLOCK_MIN_S:g} s)"
+        else:
+            cov, widened = jk.combine(cov, to_physical(cov_jx, space, res.x))
+            jk_dof = len(bm) - 1
+            interval_note = (f"95% intervals: the wider of noise (Newey-West) and model error (delete-a-block "
+                             f"jackknife, {len(bm)} blocks)"
+                             + (f"; model error widened {', '.join(space.free[i] for i in widened)} "
+                                f"(t with {jk_dof} dof)" if widened else ""))
 
     preds = [Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k)
              for st, k in zip(stretches, keeps)]
     result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
     result.extra["sigma"] = np.asarray(sigma, float)
+    result.interval = interval_note
+    if widened:
+        result.ci_dof = jk_dof
     for w in warnings:
         result.warn(w)
     for note in getattr(stretches, "notes", []):
