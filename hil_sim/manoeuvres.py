@@ -91,14 +91,16 @@ def build(plan: Plan, dt: float, rng: np.random.Generator) -> Manoeuvre:
 
 
 def _track_speed(t, t_steer, plan: Plan, rng: np.random.Generator) -> np.ndarray:
-    """A driver on a track: a new speed target every 2-5 s, anywhere within +-speed_swing of
-    the plan's speed, reached by throttle or brake; the first target is the run-up speed."""
+    """A driver on a track: a new speed target every 2-5 s, alternately above and below the
+    plan's speed by 50-100% of speed_swing (accelerate out of a corner, brake into the
+    next), reached by throttle or brake; the first target is the run-up speed."""
     if not 0 <= plan.speed_swing < 1:
         raise ValueError("speed swing must be a fraction in [0, 1)")
     times, targets = [t_steer], [plan.speed]
     while times[-1] < t[-1]:
         times.append(times[-1] + rng.uniform(2.0, 5.0))
-        targets.append(plan.speed * (1 + plan.speed_swing * rng.uniform(-1, 1)))
+        side = 1 if len(targets) % 2 else -1
+        targets.append(plan.speed * (1 + side * plan.speed_swing * rng.uniform(0.5, 1.0)))
     # hold each target, with a smooth (raised-cosine) change over the first 1.5 s of its hold
     v = np.full(len(t), plan.speed)
     for k in range(1, len(times)):

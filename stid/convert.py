@@ -87,6 +87,7 @@ def steer_at_servo_times(t_mcu_us: np.ndarray, t_raw_us: np.ndarray, steer_us: n
     # one event per pulse: its fall time and command
     f, first = np.unique(fall[ok], return_index=True)
     c = ((us[ok] - vehicle.steer_center_us) / vehicle.steer_us_per_rad)[first]
+    f, c = _fill_lost_pulses(f, c)
     # cumulative integral of the staircase at the events; value held after the last one,
     # and the first command extended back to the start
     cum = np.concatenate([[0.0], np.cumsum(c[:-1] * np.diff(f))])
@@ -101,3 +102,33 @@ def steer_at_servo_times(t_mcu_us: np.ndarray, t_raw_us: np.ndarray, steer_us: n
     # no pulse for longer than the receiver's timeout at a sample: NaN there, as before
     no_pulse = np.interp(g, np.asarray(t_mcu_us, float), (~(us > 0)).astype(float)) > 0.5
     return np.where(no_pulse, np.nan, steer), True
+
+
+def _fill_lost_pulses(fall: np.ndarray, cmd: np.ndarray):
+    """Pulses whose every sample was lost on the link leave a hole in the staircase: the
+    servo did receive them. A receiver sends at a steady period, so the missing edges are
+    put back at that period and their commands interpolated between the neighbours (far
+    closer to what the servo got than holding the last one through the hole; the
+    outputs there are left out of the fit anyway, this only keeps the model's state
+    right after the hole)."""
+    if len(fall) < 3:
+        return fall, cmd
+    d = np.diff(fall)
+    period = float(np.median(d))
+    if period <= 0:
+        return fall, cmd
+    n_missing = np.round(d / period).astype(np.int64) - 1
+    holes = np.flatnonzero((n_missing >= 1) & (np.abs(d - (n_missing + 1) * period) < 0.25 * period)
+                           & (n_missing <= 10))
+    if not len(holes):
+        return fall, cmd
+    add_t, add_c = [], []
+    for i in holes:
+        k = np.arange(1, n_missing[i] + 1)
+        tt = fall[i] + k * d[i] / (n_missing[i] + 1)
+        add_t.append(np.round(tt).astype(np.int64))
+        add_c.append(cmd[i] + (cmd[i + 1] - cmd[i]) * k / (n_missing[i] + 1))
+    f2 = np.concatenate([fall] + add_t)
+    c2 = np.concatenate([cmd] + add_c)
+    o = np.argsort(f2, kind="stable")
+    return f2[o], c2[o]

@@ -89,21 +89,32 @@ def load_csv(path) -> Run:
                          "sort the rows or remove duplicates")
     input_checks.check_time_steps(str(path), t)
     med = float(np.median(dt))
+    valid = None
+    notes = []
     if np.max(np.abs(dt - med)) > 0.05 * med:
         tu = t[0] + med * np.arange(int(round((t[-1] - t[0]) / med)) + 1)
         for k in cols:
             cols[k] = np.interp(tu, t, cols[k])
-        warnings.append(f"time was irregular (steps {dt.min() * 1e3:.2f}-{dt.max() * 1e3:.2f} ms): "
-                        f"resampled to {1 / med:.1f} Hz by linear interpolation")
+        pos = (t - t[0]) / med
+        on_grid = np.abs(pos - np.round(pos)) < 0.05
+        if on_grid.all():
+            # rows missing from a uniform log (lost samples): hold the grid's place, never data
+            valid = np.zeros(len(tu), bool)
+            valid[np.round(pos).astype(np.int64)] = True
+            notes.append(f"{int((~valid).sum())} missing rows ({100 * (~valid).mean():.1f}%: time steps up to "
+                         f"{dt.max() * 1e3:.1f} ms in a {med * 1e3:.2f} ms log) are left out of every fit")
+        else:
+            warnings.append(f"time was irregular (steps {dt.min() * 1e3:.2f}-{dt.max() * 1e3:.2f} ms): "
+                            f"resampled to {1 / med:.1f} Hz by linear interpolation")
         t = tu
     extra = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(float) for c in df.columns
              if c not in REQUIRED and c not in OPTIONAL}
-    if warnings:
+    if len(t) != len(df):  # extra columns stay on the rows' own times: not carried onto a new grid
         extra = {}
     run = Run(name=path.name, t=t - t[0], steer=cols["steer"], ay=cols["ay"], r=cols["r"], vx=cols["vx"],
               ax=cols.get("ax"), beta=cols.get("beta"),
               extra={**{k: v for k, v in cols.items() if k in OPTIONAL and k not in ("ax", "beta")}, **extra},
-              meta={"source": str(path), "format": "csv"})
+              meta={"source": str(path), "format": "csv", "notes": notes}, valid=valid)
     for w in warnings:
         run.warn(w)
     input_checks.check_kinematics(run, source="csv")
@@ -140,6 +151,8 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
             continue
         name = Path(path).name if k == 0 else f"{Path(path).name}#{k + 1}"
         runs.append(_convert(piece, log, vehicle, name, str(path)))
+        runs[-1].meta["segment"] = int(piece["segment"][0]) if "segment" in (piece.dtype.names or ()) else 0
+    _share_gyro_bias(runs)
     if log.truncated:
         for r in runs:
             r.warn(f"{Path(path).name} was cut short (logger killed?): read up to its last complete chunk; "
@@ -147,6 +160,25 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
     for r in runs:
         input_checks.check_kinematics(r, source="mcap")
     return runs
+
+
+def _share_gyro_bias(runs) -> None:
+    """A piece cut off by a gap (a burst of lost frames) has no stand-still of its own; the
+    gyro's zero from the still part of another piece since the same boot holds for it."""
+    for r in runs:
+        if r.meta.get("gyro_bias") is not None:
+            continue
+        donors = [d for d in runs if d.meta.get("gyro_bias") is not None
+                  and d.meta.get("segment") == r.meta.get("segment")]
+        if donors:
+            bias = donors[0].meta["gyro_bias"]
+            r.r = r.r - bias
+            r.meta["gyro_bias"] = bias
+            r.meta["calibration"]["gyro_bias_rad_s"] = bias
+            r.meta.setdefault("notes", []).append(
+                f"gyro zero taken from the stand-still of {donors[0].name} (same boot)")
+        else:
+            r.warn("the run never stands still: gyro bias not re-estimated (start runs with ~2 s standing still)")
 
 
 def _pieces(s):
@@ -213,9 +245,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     bias = convert.gyro_bias_from_still(run.r, run.vx, fs)
     if bias is not None:
         run.r = run.r - bias
-        run.meta["gyro_bias"] = bias
-    else:
-        run.warn("the run never stands still: gyro bias not re-estimated (start runs with ~2 s standing still)")
+    run.meta["gyro_bias"] = bias
     run.meta["calibration"] = {"steer_center_us": vehicle.steer_center_us,
                                "steer_us_per_rad": vehicle.steer_us_per_rad,
                                "wheel_radius": vehicle.wheel_radius, "sensors": vehicle.sensors,
