@@ -20,6 +20,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of manoeuvre (plus still and run-up)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--speed", type=float, default=4.0, help="m/s")
+    ap.add_argument("--speed-profile", default="constant", choices=manoeuvres.SPEED_PROFILES,
+                    help="constant: hold --speed; track: accelerate and brake every 2-5 s within "
+                         "+-(--speed-swing) of --speed, as on a track")
+    ap.add_argument("--speed-swing", type=float, default=0.25, help="fraction, for --speed-profile track")
     ap.add_argument("--steer-amp", type=float, default=3.0, help="steer amplitude (rms for random steer), degrees")
     ap.add_argument("--bandwidth", type=float, default=4.0, help="Hz, random steer / chirp")
     ap.add_argument("--still", type=float, default=2.0, help="seconds standing still at the start")
@@ -27,7 +31,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--rate", type=int, default=500, help="firmware sample rate, Hz")
     ap.add_argument("--batch", type=int, default=10, help="samples per frame")
     ap.add_argument("--start-ticks", type=int, default=0, help="MCU ticks_us at start (near 2^30 tests the wrap)")
-    f = ap.add_argument_group("link faults (real-time mode)")
+    ap.add_argument("--wheel-speeds", action="store_true",
+                    help="four hall wheel sensors (fl, fr, rl, rr) instead of one: the firmware sends "
+                         "four-wheel frames and --csv gets w_fl,w_fr,w_rl,w_rr [rad/s] from them")
+    ap.add_argument("--wheel-ppr", type=int, default=1, help="hall pulses per wheel revolution (magnets)")
+    f = ap.add_argument_group("link faults (--ber, --drop-rate, --insert-rate also with --fast)")
     f.add_argument("--ber", type=float, default=0.0, help="bit error rate")
     f.add_argument("--drop-rate", type=float, default=0.0, help="dropped bytes per byte")
     f.add_argument("--insert-rate", type=float, default=0.0, help="inserted garbage per byte")
@@ -54,6 +62,8 @@ def config_from_args(args):
         raise ValueError(f"unknown effect(s) {', '.join(sorted(unknown))}; known: {', '.join(vehicle.EFFECT_NAMES)}")
     if args.duration <= 0:
         raise ValueError("--duration must be positive")
+    if args.wheel_ppr < 1:
+        raise ValueError("--wheel-ppr must be at least 1")
     stalls = []
     for s in args.stall:
         try:
@@ -62,9 +72,11 @@ def config_from_args(args):
             raise ValueError(f"--stall takes AT:FOR in seconds, e.g. 5:0.8 (got {s!r})") from None
         stalls.append((at, dur))
     plan = manoeuvres.Plan(name=args.manoeuvre, duration=args.duration, speed=args.speed,
-                           steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still)
+                           steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still,
+                           speed_profile=args.speed_profile, speed_swing=args.speed_swing)
     return SimConfig(plan=plan, effects=effects, seed=args.seed, board=args.board, rate_hz=args.rate,
-                     batch=args.batch, start_ticks=args.start_ticks, stalls=tuple(stalls))
+                     batch=args.batch, start_ticks=args.start_ticks, stalls=tuple(stalls),
+                     wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)
 
 
 def main(argv=None) -> int:
@@ -77,7 +89,11 @@ def main(argv=None) -> int:
                 ap.error("--fast needs -o RUN.mcap")
             from hil_sim.record import record
 
-            stats = record(cfg, args.output, csv_path=args.csv, truth_path=args.truth)
+            from hil_sim.faults import LinkFaults
+
+            faults = LinkFaults(ber=args.ber, drop_rate=args.drop_rate, insert_rate=args.insert_rate,
+                                seed=args.seed)
+            stats = record(cfg, args.output, csv_path=args.csv, truth_path=args.truth, faults=faults)
             print(f"wrote {args.output}: {stats['samples']} samples", file=sys.stderr)
             return 0
         from hil_sim.faults import LinkFaults

@@ -16,6 +16,7 @@ from cobs import cobs
 from hil_sim.firmware_runner import run_firmware
 from hil_sim.run import SimConfig, SimRun, simulate_run, write_truth
 from host import protocol as p
+from host import units
 from host.frame_decoder import FrameDecoder
 from host.mcap_log import McapLog
 from host.recorder import Recorder
@@ -55,10 +56,15 @@ def frame_chunks(stream: bytes):
     return chunks, np.concatenate([[0], np.cumsum(steps)]) + (t[0] if len(t) else 0)
 
 
-def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: int | None = None) -> dict:
+def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: int | None = None,
+           faults=None) -> dict:
+    """Simulate, run the firmware, record. ``faults`` (hil_sim.faults.LinkFaults) corrupt the
+    bytes on their way to the recorder, as a lossy link does in real time (the CSV stays
+    the clean stream's: it is the ideal logger's)."""
     run = simulate_run(cfg)
     stream = firmware_bytes(run)
-    stats = record_stream(stream, mcap_path, start_ns)
+    wire = faults.apply(stream) if faults is not None and faults.active else stream
+    stats = record_stream(wire, mcap_path, start_ns)
     if truth_path:
         write_truth(run, truth_path)
     if csv_path:
@@ -83,14 +89,17 @@ def record_stream(stream: bytes, mcap_path, start_ns: int | None = None) -> dict
 
 def write_csv(run: SimRun, stream: bytes, path) -> None:
     """The CSV an ideal logger writes (import contract, SI units), converted with the
-    simulated car's own sensor constants."""
+    simulated car's own sensor constants: every column comes from the firmware's bytes
+    (wheel speeds from the hall edges it timed), except ``beta`` (an extra sensor the
+    car does not have, sampled from the truth at the sample instants)."""
     frames = FrameDecoder().feed(stream)
-    body = b"".join(f.samples_bytes() for f in frames if f.type == p.SAMPLES)
-    s = np.frombuffer(body, dtype=p.SAMPLE_DTYPE)
+    s = p.samples_from_records((f.version, f.type, f.samples_bytes()) for f in frames if f.type in p.SAMPLE_TYPES)
+    hello = next((f.hello() for f in frames if f.type == p.HELLO), {})
     car, sens = run.cfg.car, run.cfg.sens
     t_raw = s["t_us"].astype(np.int64)
     steps = np.diff(t_raw) % p.MOD
-    t = np.concatenate([[0], np.cumsum(steps)]) * 1e-6
+    t_mcu_us = t_raw[0] + np.concatenate([[0], np.cumsum(steps)])
+    t = (t_mcu_us - t_raw[0]) * 1e-6
     if run.cfg.board == "pico":
         volts = lambda c: c.astype(float) / 4095 * sens.vs  # noqa: E731
     else:
@@ -101,7 +110,7 @@ def write_csv(run: SimRun, stream: bytes, path) -> None:
     r = np.radians((volts(s["yaw"]) - sens.gyro_zero) / sens.gyro_sens)
     steer = np.where(s["steer_us"] > 0, (s["steer_us"] - car.steer_center_us) / car.steer_us_per_rad, 0.0)
     vx = _hall_speed(t_raw, s["wheel_count"].astype(np.int64), s["wheel_t_us"].astype(np.int64),
-                     2 * math.pi * car.wheel_radius)
+                     2 * math.pi * car.wheel_radius / run.cfg.wheel_ppr)
     cols = {"t": t, "steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax, "delta_cmd": steer}
     if run.cfg.beta_sensor is not None:
         # an optical slip sensor (Correvit-style) sampled with the firmware's samples
@@ -111,14 +120,11 @@ def write_csv(run: SimRun, stream: bytes, path) -> None:
         rng = np.random.default_rng(run.cfg.seed + 99)
         cols["beta"] = np.interp(t_true, tr.t, beta) + run.cfg.beta_sensor * rng.standard_normal(len(t))
     if run.cfg.wheel_speeds:
-        from hil_sim.vehicle import wheel_speeds
-
-        tr = run.traj
-        t_true = (t_raw - t_raw[0] + (t_raw[0] - run.cfg.start_ticks) % p.MOD) * 1e-6
-        w = [np.interp(t_true, tr.t, x) for x in wheel_speeds(tr, car)]
-        for name, x in zip(("w_fl", "w_fr", "w_rl", "w_rr"), w):
-            cols[name] = x
-        cols["vx"] = 0.5 * (w[0] + w[1]) * car.wheel_radius  # free-rolling fronts measure the speed
+        # the four halls the firmware saw, by the host's edge-period method (host.units)
+        w = units.wheel_speeds(t_mcu_us, s, hello)
+        for name in ("w_fl", "w_fr", "w_rl", "w_rr"):
+            cols[name] = w[name]
+        cols["vx"] = 0.5 * (w["w_fl"] + w["w_fr"]) * car.wheel_radius  # free-rolling fronts measure the speed
     write_columns(path, cols)
 
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
-from hil_sim.vehicle import G, CarParams, Effects, Trajectory
+from hil_sim.vehicle import G, CarParams, Effects, Trajectory, wheel_speeds
 
 
 @dataclass
@@ -118,3 +118,20 @@ def hall_edges_us(traj: Trajectory, car: CarParams, pulses_per_rev: int = 1) -> 
     circ = 2 * math.pi * car.wheel_radius / pulses_per_rev
     k = np.arange(1, int(traj.s[-1] // circ) + 1) * circ
     return np.round(np.interp(k, traj.s, traj.t) * 1e6).astype(np.int64)
+
+
+WHEEL_NAMES = ("fl", "fr", "rl", "rr")
+
+
+def wheel_hall_edges_us(traj: Trajectory, car: CarParams, pulses_per_rev: int = 1) -> dict:
+    """Hall edge times [us] of each wheel (fl, fr, rl, rr): a magnet passes the sensor
+    every 1/pulses_per_rev revolution of that wheel's own rotation (the truth's wheel
+    speeds, integrated to angle)."""
+    out = {}
+    for name, w in zip(WHEEL_NAMES, wheel_speeds(traj, car)):
+        angle = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(traj.t))])
+        step = 2 * math.pi / pulses_per_rev
+        k = np.arange(1, int(angle[-1] // step) + 1) * step
+        # angle never decreases (w >= 0); where it is flat interp takes the first crossing
+        out[name] = np.round(np.interp(k, angle, traj.t) * 1e6).astype(np.int64)
+    return out

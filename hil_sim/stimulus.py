@@ -2,9 +2,11 @@
 
 hil_sim computes pin voltages on a fine grid, the steering servo pulse train and
 the hall edges, and writes them for ``board/simboard.py`` (MicroPython) to play.
-Layout (little-endian): ``b"STIDSIM1"``, u32 header length, JSON header, then
+Layout (little-endian): ``b"STIDSIM2"``, u32 header length, JSON header, then
 u16 voltages in 0.1 mV (rows at ``fs_sig``, one column per analog pin), u16 servo
-pulse widths [us] (one per servo period), u32 hall edge times [us].
+pulse widths [us], u32 their rising-edge times [us] (the receiver's own clock),
+u32 hall edge times [us] of all hall pins merged in time order, u8 the pin of each
+hall edge.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-MAGIC = b"STIDSIM1"
+MAGIC = b"STIDSIM2"
 VOLT_UNIT = 1e-4  # 0.1 mV per count
 
 
@@ -25,12 +27,15 @@ class Stimulus:
     board: str
     fs_sig: int  # rate of the voltage grid [Hz]
     volts: dict  # pin number -> voltage array [V] on the grid
-    steer_us: np.ndarray  # one pulse width per servo period [us]
-    hall_t_us: np.ndarray  # hall edge times [us]
+    steer_us: np.ndarray  # one width per servo pulse [us]
+    hall_t_us: np.ndarray  # hall edge times [us] (the one hall sensor)
     steer_pin: int
     hall_pin: int
-    steer_period_us: int = 20000
+    steer_period_us: int = 20000  # used only when steer_rise_us is None
     steer_phase_us: int = 3000
+    steer_rise_us: np.ndarray | None = None  # rising-edge time of each pulse [us]
+    wheel_halls: dict | None = None  # four halls instead of one: position -> (pin, edge times [us])
+    wheel_ppr: int = 1  # hall pulses per wheel revolution (declared in HELLO)
     start_ticks: int = 0  # virtual ticks_us at t = 0 (set near 2^30 to test the wrap)
     stalls: list = field(default_factory=list)  # [(at_us, for_us)]: host stops reading
 
@@ -42,16 +47,47 @@ class Stimulus:
     def duration_us(self) -> int:
         return int(self.n_rows * 1_000_000 // self.fs_sig)
 
+    def rise_us(self) -> np.ndarray:
+        """Rising-edge time [us] of every servo pulse."""
+        if self.steer_rise_us is not None:
+            return np.asarray(self.steer_rise_us, dtype=np.int64)
+        k = np.arange(len(self.steer_us), dtype=np.int64)
+        return self.steer_phase_us + k * self.steer_period_us
+
+    def fall_us(self) -> np.ndarray:
+        """Falling-edge time [us] of every servo pulse (when the servo takes its width)."""
+        return self.rise_us() + np.asarray(self.steer_us, dtype=np.int64)
+
+    def hall_events(self):
+        """(times [us], pins) of every hall edge, merged in time order."""
+        if self.wheel_halls is None:
+            t = np.asarray(self.hall_t_us, dtype=np.int64)
+            return t, np.full(len(t), self.hall_pin, dtype=np.int64)
+        ts, ps = [], []
+        for pin, edges in self.wheel_halls.values():
+            ts.append(np.asarray(edges, dtype=np.int64))
+            ps.append(np.full(len(edges), pin, dtype=np.int64))
+        t, pins = np.concatenate(ts), np.concatenate(ps)
+        order = np.argsort(t, kind="stable")
+        return t[order], pins[order]
+
     def write(self, path: Path) -> None:
         pins = sorted(self.volts)
         grid = np.stack([self.volts[p] for p in pins], axis=1)
         counts = np.clip(np.round(grid / VOLT_UNIT), 0, 65535).astype("<u2")
+        hall_t, hall_p = self.hall_events()
+        rise = self.rise_us()
+        if len(rise) != len(self.steer_us):
+            raise ValueError("one rising edge per servo pulse width")
+        if len(rise) > 1 and np.any(np.diff(rise) <= np.asarray(self.steer_us)[:-1]):
+            raise ValueError("servo pulses overlap")
         header = {
             "board": self.board, "fs_sig": self.fs_sig, "n_rows": int(grid.shape[0]),
             "cols": {str(p): i for i, p in enumerate(pins)},
-            "n_steer": int(len(self.steer_us)), "steer_period_us": self.steer_period_us,
-            "steer_phase_us": self.steer_phase_us, "steer_pin": self.steer_pin,
-            "n_hall": int(len(self.hall_t_us)), "hall_pin": self.hall_pin,
+            "n_steer": int(len(self.steer_us)), "steer_pin": self.steer_pin,
+            "n_hall": int(len(hall_t)), "hall_pins": sorted(set(int(x) for x in hall_p)) or [self.hall_pin],
+            "wheels": None if self.wheel_halls is None else {k: int(v[0]) for k, v in self.wheel_halls.items()},
+            "wheel_ppr": int(self.wheel_ppr),
             "duration_us": self.duration_us, "start_ticks": self.start_ticks,
             "stalls": [list(map(int, s)) for s in self.stalls],
         }
@@ -60,7 +96,9 @@ class Stimulus:
             f.write(MAGIC + struct.pack("<I", len(hb)) + hb)
             f.write(counts.tobytes())
             f.write(np.asarray(self.steer_us, dtype="<u2").tobytes())
-            f.write(np.asarray(self.hall_t_us, dtype="<u4").tobytes())
+            f.write(rise.astype("<u4").tobytes())
+            f.write(hall_t.astype("<u4").tobytes())
+            f.write(hall_p.astype("u1").tobytes())
 
     def volts_counts(self, pin: int) -> np.ndarray:
         """The 0.1 mV values the board reads for ``pin`` (as written to the file)."""

@@ -64,8 +64,13 @@ class CarParams:
     # steering servo pulse: centre and gain from road-wheel angle (500 us per 25 deg)
     steer_center_us: float = 1500.0
     steer_us_per_rad: float = 500.0 / math.radians(25.0)
+    # the receiver's pulse train runs on its own clock: nominal 20 ms, its crystal off by
+    # servo_clock_ppm, each edge jittered by servo_jitter_us rms, so the falling edges
+    # sweep through the firmware's sample period instead of locking to it
     servo_period_us: int = 20000
     servo_phase_us: int = 3000
+    servo_clock_ppm: float = 300.0
+    servo_jitter_us: float = 2.0
 
     @property
     def L(self) -> float:
@@ -109,10 +114,12 @@ class Trajectory:
     x: np.ndarray
     y: np.ndarray
     psi: np.ndarray
-    steer_pulses_us: np.ndarray  # one servo pulse width per servo period
+    steer_pulses_us: np.ndarray  # one servo pulse width per receiver pulse
     Fx: np.ndarray  # N, drive force at the rear axle
     states: np.ndarray | None = None  # (n, 13) raw states, for dense output
     rhs: object = None  # the right-hand side, for dense output
+    steer_rise_us: np.ndarray | None = None  # rising edge of each pulse [us since t = 0]
+    switches: dict | None = None  # commands taken inside a step: step, t, state, old, new
 
     def dense(self, tg: np.ndarray) -> dict:
         """Outputs between integration steps. Within a step the servo command is held, so
@@ -123,19 +130,44 @@ class Trajectory:
         n = len(self.t)
         left = {"ay": self.ay, "ax": self.ax, "r_dot": self.r_dot}
         right = {k: np.append(v[1:], v[-1]).copy() for k, v in left.items()}
+        sw = self.switches or {"step": np.zeros(0, int)}
+        inside = set(sw["step"].tolist())  # steps where the command changed at a falling edge within
         changed = np.flatnonzero(self.delta_cmd[1:] != self.delta_cmd[:-1])  # steps i -> i+1
         for i in changed:
-            x = list(self.states[i + 1])
-            d, aux = self.rhs(x, float(self.delta_cmd[i]), float(self.v_ref[i]))
-            right["ax"][i] = aux[3] - x[4] * x[5]
-            right["ay"][i] = aux[4] + x[3] * x[5]
-            right["r_dot"][i] = aux[5]
+            if i in inside:
+                continue
+            right_ax, right_ay, right_rd = self._outputs(self.states[i + 1], self.delta_cmd[i], self.v_ref[i])
+            right["ax"][i], right["ay"][i], right["r_dot"][i] = right_ax, right_ay, right_rd
         idx = np.clip(np.searchsorted(self.t, tg, side="right") - 1, 0, n - 1)
         frac = np.clip((tg - self.t[idx]) / np.maximum(np.diff(self.t, append=self.t[-1] + 1)[idx], 1e-12), 0, 1)
         out = {k: left[k][idx] + (right[k][idx] - left[k][idx]) * frac for k in left}
+        # a step with a falling edge inside: the old command up to the edge, the new one after
+        names = ("ax", "ay", "r_dot")
+        for j, i in enumerate(sw["step"].tolist()):
+            lo, hi = np.searchsorted(tg, [self.t[i], self.t[i] + (self.t[1] - self.t[0])], side="left")
+            if hi <= lo:
+                continue
+            tf, xf = sw["t"][j], sw["state"][j]
+            minus = self._outputs(xf, sw["old"][j], self.v_ref[i])
+            plus = self._outputs(xf, sw["new"][j], self.v_ref[i])
+            seg = tg[lo:hi]
+            before = seg < tf
+            fb = np.clip((seg - self.t[i]) / max(tf - self.t[i], 1e-12), 0, 1)
+            t_end = self.t[i + 1] if i + 1 < n else self.t[i] + (self.t[1] - self.t[0])
+            fa = np.clip((seg - tf) / max(t_end - tf, 1e-12), 0, 1)
+            for k, name in enumerate(names):
+                a = left[name][i] + (minus[k] - left[name][i]) * fb
+                b = plus[k] + (right[name][i] - plus[k]) * fa
+                out[name][lo:hi] = np.where(before, a, b)
         for k, v in (("r", self.r), ("vx", self.vx), ("phi", self.phi)):
             out[k] = np.interp(tg, self.t, v)
         return out
+
+    def _outputs(self, state, dcmd, vref):
+        """(ax, ay, r_dot) at a state under a command."""
+        x = list(state)
+        _, aux = self.rhs(x, float(dcmd), float(vref))
+        return aux[3] - x[4] * x[5], aux[4] + x[3] * x[5], aux[5]
 
 
 def wheel_speeds(traj: "Trajectory", car: "CarParams"):
@@ -149,6 +181,15 @@ def wheel_speeds(traj: "Trajectory", car: "CarParams"):
     return out
 
 
+def servo_rise_times_us(car: "CarParams", duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Rising edges [us] of the receiver's pulse train over ``duration_s``: its own clock
+    (nominal period off by ``servo_clock_ppm``) plus ``servo_jitter_us`` rms per edge."""
+    period = car.servo_period_us * (1.0 + car.servo_clock_ppm * 1e-6)
+    n = int((duration_s * 1e6 - car.servo_phase_us) // period) + 1
+    t = car.servo_phase_us + np.arange(max(n, 1)) * period + car.servo_jitter_us * rng.standard_normal(max(n, 1))
+    return np.round(np.maximum(t, 0)).astype(np.int64)
+
+
 def _mf(alpha, C, Fz, mu, shape):
     """Magic-formula side force with the given cornering stiffness at small slip."""
     D = mu * Fz
@@ -157,14 +198,17 @@ def _mf(alpha, C, Fz, mu, shape):
 
 
 def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.ndarray,
-             v_ref: np.ndarray, driver=None) -> Trajectory:
+             v_ref: np.ndarray, driver=None, pulse_rise_us: np.ndarray | None = None) -> Trajectory:
     """Integrate the car over the grid ``t`` (uniform, starting at 0) with RK4.
 
     ``steer_plan`` is the road-wheel angle the driver wants [rad] on the grid, or
     ``driver(x, y, psi, vx)`` returns it in closed loop. Either way the servo
-    receives it as a 50 Hz train of integer-microsecond pulses, and that held,
-    quantised command is what the truth applies (and what the car's firmware
-    measures). ``v_ref`` is the speed the throttle holds [m/s].
+    receives it as a ~50 Hz train of integer-microsecond pulses whose rising edges
+    are ``pulse_rise_us`` (default: ``servo_rise_times_us`` with seed 0), and that
+    held, quantised command is what the truth applies, from the pulse's falling
+    edge to the microsecond (the step that holds the edge is split there). That is
+    also what the car's firmware measures. ``v_ref`` is the speed the throttle
+    holds [m/s].
     """
     dt = float(t[1] - t[0])
     n = len(t)
@@ -226,27 +270,47 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     out = np.zeros((n, 13))
     aux = np.zeros((n, 7))
     delta_cmd = np.zeros(n)
-    period = car.servo_period_us * 1e-6
-    n_pulses = int(t[-1] // period) + 1
+    if pulse_rise_us is None:
+        pulse_rise_us = servo_rise_times_us(car, float(t[-1]), np.random.default_rng(0))
+    rise = np.asarray(pulse_rise_us, dtype=np.int64)
+    rise = rise[rise <= round(t[-1] * 1e6)]
+    n_pulses = len(rise)
     pulses = np.zeros(n_pulses, dtype=np.int64)
     k_next = 0
     dc = 0.0
     state = [0.0] * 13
-    pending = None  # (apply time [s], command [rad]) of the pulse in flight
+    pending = None  # (falling edge [us], command [rad]) of the pulse in flight
+    sw_step, sw_t, sw_state, sw_old, sw_new = [], [], [], [], []
+
+    def rk4(state, h, dc, vr, k1=None):
+        if k1 is None:
+            k1, _ = rhs(state, dc, vr)
+        s2 = [x + 0.5 * h * k for x, k in zip(state, k1)]
+        k2, _ = rhs(s2, dc, vr)
+        s3 = [x + 0.5 * h * k for x, k in zip(state, k2)]
+        k3, _ = rhs(s3, dc, vr)
+        s4 = [x + h * k for x, k in zip(state, k3)]
+        k4, _ = rhs(s4, dc, vr)
+        return [x + h / 6.0 * (p + 2 * q + 2 * u + w) for x, p, q, u, w in zip(state, k1, k2, k3, k4)]
+
+    dt_us = dt * 1e6
     for i in range(n):
-        # the width of pulse k is set when it starts; the servo takes it at the pulse's end
-        # (the falling edge, where the firmware measures it): applied at the nearest step
-        while k_next < n_pulses and t[i] >= car.servo_phase_us * 1e-6 + k_next * period:
+        t0_us = t[i] * 1e6
+        # the width of pulse k is set when it starts (the driver's wish at the step that
+        # holds the rising edge); the servo takes it at the pulse's end, the falling edge,
+        # where the firmware measures it
+        while k_next < n_pulses and rise[k_next] < t0_us + dt_us - 1e-6:
             want = driver(state[0], state[1], state[2], state[3]) if driver else float(steer_plan[i])
             us = int(round(car.steer_center_us + want * car.steer_us_per_rad))
             us = max(900, min(2100, us))
             pulses[k_next] = us
-            pending = (car.servo_phase_us * 1e-6 + k_next * period + us * 1e-6,
-                       (us - car.steer_center_us) / car.steer_us_per_rad)
+            pending = (int(rise[k_next]) + us, (us - car.steer_center_us) / car.steer_us_per_rad)
             k_next += 1
-        if pending is not None and t[i] >= pending[0] - 0.5 * dt:
+        if pending is not None and pending[0] <= t0_us + 1e-6:  # edge at (or, rounding, just before) t_i
             dc = pending[1]
             pending = None
+            if not lag:
+                state[6] = dc
         if i == 0:
             state[6] = dc
         delta_cmd[i] = dc
@@ -254,13 +318,24 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
         k1, ax1 = rhs(state, dc, vr)
         out[i] = state
         aux[i] = ax1
-        s2 = [x + 0.5 * dt * k for x, k in zip(state, k1)]
-        k2, _ = rhs(s2, dc, vr)
-        s3 = [x + 0.5 * dt * k for x, k in zip(state, k2)]
-        k3, _ = rhs(s3, dc, vr)
-        s4 = [x + dt * k for x, k in zip(state, k3)]
-        k4, _ = rhs(s4, dc, vr)
-        state = [x + dt / 6.0 * (p + 2 * q + 2 * u + w) for x, p, q, u, w in zip(state, k1, k2, k3, k4)]
+        if pending is not None and pending[0] < t0_us + dt_us - 1e-6:
+            # the falling edge lies inside this step: integrate up to it, take the command there
+            h1 = (pending[0] - t0_us) * 1e-6
+            state = rk4(state, h1, dc, vr, k1)
+            if not lag:
+                state[6] = dc
+            sw_step.append(i)
+            sw_t.append(pending[0] * 1e-6)
+            sw_state.append(list(state))
+            sw_old.append(dc)
+            dc = pending[1]
+            sw_new.append(dc)
+            pending = None
+            if not lag:
+                state[6] = dc
+            state = rk4(state, dt - h1, dc, vr)
+        else:
+            state = rk4(state, dt, dc, vr, k1)
         if not lag:
             state[6] = dc
         if state[3] < 0.0:
@@ -268,8 +343,12 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     X, Y, psi, vx, vy, r = (out[:, k] for k in range(6))
     dvx, dvy, dr = aux[:, 3], aux[:, 4], aux[:, 5]
     pulses[k_next:] = pulses[k_next - 1] if k_next else int(car.steer_center_us)
+    switches = {"step": np.asarray(sw_step, dtype=int), "t": np.asarray(sw_t, dtype=float),
+                "state": np.asarray(sw_state, dtype=float).reshape(-1, 13),
+                "old": np.asarray(sw_old, dtype=float), "new": np.asarray(sw_new, dtype=float)}
     tr = Trajectory(t=t, delta_cmd=delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
                     r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
-                    x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6], states=out, rhs=rhs)
+                    x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6], states=out, rhs=rhs,
+                    steer_rise_us=rise, switches=switches)
     tr.v_ref = np.asarray(v_ref, float)
     return tr

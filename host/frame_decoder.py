@@ -33,6 +33,10 @@ class Frame:
     payload: bytes
 
     @property
+    def version(self) -> int:
+        return self.payload[0]
+
+    @property
     def body(self) -> bytes:
         return self.payload[p.HEADER_SIZE:]
 
@@ -43,7 +47,12 @@ class Frame:
         return self.payload[p.HEADER_SIZE + 4]
 
     def samples_bytes(self) -> bytes:
+        """The raw sample records (layout: ``p.RECORD_DTYPES[(version, type)]``)."""
         return self.payload[p.HEADER_SIZE + p.SAMPLES_HEAD_SIZE:]
+
+    def samples(self):
+        """The samples as a ``p.DECODED_DTYPE`` array (fields this layout lacks filled)."""
+        return p.records_to_samples(self.version, self.type, self.samples_bytes())
 
     def status(self) -> dict:
         return dict(zip(p.STATUS_FIELDS, _status.unpack_from(self.payload, p.HEADER_SIZE)))
@@ -144,12 +153,16 @@ class FrameDecoder:
             errors["crc"] += 1
             return None
         version, ftype, seq, t_us = _header.unpack_from(payload)
-        if version != p.VERSION:
+        if version not in p.VERSIONS:
             errors["version"] += 1
             return None
         body_len = n - p.HEADER_SIZE - p.CRC_SIZE
-        if ftype == p.SAMPLES:
-            if body_len < p.SAMPLES_HEAD_SIZE or body_len != p.SAMPLES_HEAD_SIZE + p.SAMPLE_SIZE * payload[p.HEADER_SIZE + 4]:
+        if ftype in p.SAMPLE_TYPES:
+            rec = p.RECORD_DTYPES.get((version, ftype))
+            if rec is None:  # a type this version does not have
+                errors["type"] += 1
+                return None
+            if body_len < p.SAMPLES_HEAD_SIZE or body_len != p.SAMPLES_HEAD_SIZE + rec.itemsize * payload[p.HEADER_SIZE + 4]:
                 errors["length"] += 1
                 return None
         elif ftype == p.STATUS:

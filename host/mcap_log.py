@@ -34,12 +34,15 @@ SCHEMAS = {
         "type": "object",
         "description": "The samples of one port read as column arrays: raw ADC counts "
                        "(65535 = not sampled; convert with the HELLO content), sample index, unwrapped "
-                       "MCU time [us] and the clock model's host time [ns].",
+                       "MCU time [us] and the clock model's host time [ns]. steer_t_us: MCU ticks of the "
+                       "falling edge of the servo pulse whose width is steer_us (4294967295: unknown, "
+                       "protocol 1). wheelK_*: hall sensors 1-3 of four-wheel frames (present only then).",
         "properties": {
             "boot": {"type": "string"}, "n": {"type": "integer"},
             **{k: {"type": "array", "items": {"type": "integer"}}
                for k in ("index", "t_mcu_us", "t_host_ns", "ax", "ay", "az", "yaw", "steer_us", "wheel_count",
-                         "wheel_t_us", "vbat")},
+                         "wheel_t_us", "vbat", "steer_t_us", "wheel1_count", "wheel1_t_us", "wheel2_count",
+                         "wheel2_t_us", "wheel3_count", "wheel3_t_us")},
         },
     },
     "stid.Status": {"type": "object", "description": "Firmware STATUS frame", "properties": {}},

@@ -32,7 +32,7 @@ class LogReadError(HostError):
 @dataclass
 class LogData:
     path: str
-    samples: np.ndarray  # SAMPLE_DTYPE fields + index, segment, t_mcu_us (unwrapped), t_host_ns
+    samples: np.ndarray  # LOADED_DTYPE: every wire field + index, segment, t_mcu_us (unwrapped), t_host_ns
     hellos: list = field(default_factory=list)  # (log_ns, doc)
     status: list = field(default_factory=list)  # (log_ns, doc)
     events: list = field(default_factory=list)  # (log_ns, doc)
@@ -46,7 +46,10 @@ class LogData:
         return self.hellos[0][1] if self.hellos else {}
 
 
-LOADED_DTYPE = np.dtype([(n, p.SAMPLE_DTYPE[n]) for n in p.SAMPLE_FIELDS] + [
+# Every field of every protocol version's records (p.SAMPLE_FIELDS), whichever the file
+# holds: steer_t_us is 0xFFFFFFFF (p.STEER_T_UNKNOWN) for protocol 1 samples; wheel1..3
+# fields are 0xFFFF / 0xFFFFFFFF unless the samples came in four-wheel frames.
+LOADED_DTYPE = np.dtype([(n, p.DECODED_DTYPE[n]) for n in p.SAMPLE_FIELDS] + [
     ("index", "<i8"), ("segment", "<i4"), ("t_mcu_us", "<i8"), ("t_host_ns", "<i8")])
 
 
@@ -137,13 +140,14 @@ def _maybe_json(v: str):
 def _decode_samples(payloads: list[bytes], frame_ns: np.ndarray) -> np.ndarray:
     """All SAMPLES frames -> one array, MCU time unwrapped per firmware boot."""
     head = p.HEADER_SIZE + p.SAMPLES_HEAD_SIZE
-    keep = [i for i, pl in enumerate(payloads) if pl[1] == p.SAMPLES]
+    keep = [i for i, pl in enumerate(payloads)
+            if len(pl) >= head and (pl[0], pl[1]) in p.RECORD_DTYPES]
     if not keep:
         return np.zeros(0, LOADED_DTYPE)
     counts = np.fromiter((payloads[i][p.HEADER_SIZE + 4] for i in keep), dtype=np.int64, count=len(keep))
     first = np.fromiter((int.from_bytes(payloads[i][p.HEADER_SIZE:p.HEADER_SIZE + 4], "little") for i in keep),
                         dtype=np.int64, count=len(keep))
-    raw = np.frombuffer(b"".join(payloads[i][head:] for i in keep), dtype=p.SAMPLE_DTYPE)
+    raw = p.samples_from_records((payloads[i][0], payloads[i][1], payloads[i][head:]) for i in keep)
     n = len(raw)
     out = np.zeros(n, LOADED_DTYPE)
     for name in p.SAMPLE_FIELDS:

@@ -1,14 +1,22 @@
 """Constants and record layouts of the stid wire protocol (firmware/PROTOCOL.md).
 
-This module mirrors the spec; it holds no logic. numpy dtypes let the host turn
-the sample records of many frames into arrays in one call.
+This module mirrors the spec; it holds no logic beyond turning records into
+arrays. numpy dtypes let the host turn the sample records of many frames into
+arrays in one call.
+
+Versions: the receiver accepts every version in ``VERSIONS``; the header's
+version byte and the frame type together name the record layout
+(``RECORD_DTYPES``). Version 1 (22-byte records, no steer time) is still decoded:
+its samples get ``steer_t_us = STEER_T_UNKNOWN``.
 """
 
 import numpy as np
 
-VERSION = 1
-HELLO, SAMPLES, STATUS = 1, 2, 3
-TYPE_NAMES = {HELLO: "hello", SAMPLES: "samples", STATUS: "status"}
+VERSION = 2  # what the firmware sends
+VERSIONS = (1, 2)  # what the host decodes
+HELLO, SAMPLES, STATUS, SAMPLES4 = 1, 2, 3, 4
+TYPE_NAMES = {HELLO: "hello", SAMPLES: "samples", STATUS: "status", SAMPLES4: "samples4"}
+SAMPLE_TYPES = (SAMPLES, SAMPLES4)
 
 MOD = 1 << 30  # seq, t_us and sample index all count modulo 2^30
 HEADER_SIZE = 10
@@ -16,19 +24,72 @@ CRC_SIZE = 4
 MAX_FRAME = 1024  # bytes before COBS
 MAX_WIRE = MAX_FRAME + MAX_FRAME // 254 + 2  # COBS worst case, delimiter excluded
 MISSING = 0xFFFF  # a field the board does not sample
+STEER_T_UNKNOWN = 0xFFFFFFFF  # steer_t_us of a version 1 sample (the wire did not carry it)
+WHEEL_T_MISSING = 0xFFFFFFFF  # wheelK_t_us of a wheel the frame does not carry
+WHEEL_COUNT_MISSING = 0xFFFF
 
 HEADER_FMT = "<BBII"
 SAMPLES_HEAD_FMT = "<IB"
 SAMPLES_HEAD_SIZE = 5
-SAMPLE_SIZE = 22
-MAX_BATCH = 40
 
-SAMPLE_DTYPE = np.dtype([
+_V1_FIELDS = [
     ("t_us", "<u4"), ("ax", "<u2"), ("ay", "<u2"), ("az", "<u2"), ("yaw", "<u2"),
     ("steer_us", "<u2"), ("wheel_count", "<u2"), ("wheel_t_us", "<u4"), ("vbat", "<u2"),
-])
-assert SAMPLE_DTYPE.itemsize == SAMPLE_SIZE
-SAMPLE_FIELDS = SAMPLE_DTYPE.names
+]
+_WHEELS3 = [(f"wheel{k}_{f}", t) for k in (1, 2, 3) for f, t in (("count", "<u2"), ("t_us", "<u4"))]
+
+SAMPLE_DTYPE_V1 = np.dtype(_V1_FIELDS)  # version 1, type 2: 22 bytes
+SAMPLE_DTYPE = np.dtype(_V1_FIELDS + [("steer_t_us", "<u4")])  # version 2, type 2: 26 bytes
+SAMPLE4_DTYPE = np.dtype(_V1_FIELDS + [("steer_t_us", "<u4")] + _WHEELS3)  # version 2, type 4: 44 bytes
+assert (SAMPLE_DTYPE_V1.itemsize, SAMPLE_DTYPE.itemsize, SAMPLE4_DTYPE.itemsize) == (22, 26, 44)
+SAMPLE_SIZE = SAMPLE_DTYPE.itemsize
+SAMPLE4_SIZE = SAMPLE4_DTYPE.itemsize
+
+RECORD_DTYPES = {(1, SAMPLES): SAMPLE_DTYPE_V1, (2, SAMPLES): SAMPLE_DTYPE, (2, SAMPLES4): SAMPLE4_DTYPE}
+
+# Every field a decoded sample has, whatever its frame carried (the union, in record order).
+SAMPLE_FIELDS = SAMPLE4_DTYPE.names
+DECODED_DTYPE = np.dtype([(n, SAMPLE4_DTYPE[n]) for n in SAMPLE_FIELDS])
+FILL = {"steer_t_us": STEER_T_UNKNOWN, **{n: (WHEEL_T_MISSING if n.endswith("_t_us") else WHEEL_COUNT_MISSING)
+                                         for n, _ in _WHEELS3}}
+WHEEL_FIELDS = [("wheel_count", "wheel_t_us")] + [(f"wheel{k}_count", f"wheel{k}_t_us") for k in (1, 2, 3)]
+
+
+def max_batch(version: int, ftype: int) -> int:
+    """Most records of this layout that fit one frame (40, 38, 22)."""
+    if version == 1:
+        return 40
+    return (MAX_FRAME - HEADER_SIZE - CRC_SIZE - SAMPLES_HEAD_SIZE) // RECORD_DTYPES[(version, ftype)].itemsize
+
+
+def records_to_samples(version: int, ftype: int, data: bytes) -> np.ndarray:
+    """Sample records of one layout (concatenated) -> DECODED_DTYPE array, absent fields filled."""
+    raw = np.frombuffer(data, dtype=RECORD_DTYPES[(version, ftype)])
+    out = np.empty(len(raw), DECODED_DTYPE)
+    for name in SAMPLE_FIELDS:
+        if name in raw.dtype.names:
+            out[name] = raw[name]
+        else:
+            out[name] = FILL[name]
+    return out
+
+
+def samples_from_records(parts) -> np.ndarray:
+    """(version, type, records) of consecutive frames -> one DECODED_DTYPE array.
+    Runs of one layout are decoded together (one numpy call per run, not per frame)."""
+    out, run, key = [], [], None
+    for version, ftype, data in parts:
+        if (version, ftype) != key and run:
+            out.append(records_to_samples(*key, b"".join(run)))
+            run = []
+        key = (version, ftype)
+        run.append(data)
+    if run:
+        out.append(records_to_samples(*key, b"".join(run)))
+    if not out:
+        return np.zeros(0, DECODED_DTYPE)
+    return out[0] if len(out) == 1 else np.concatenate(out)
+
 
 STATUS_FMT = "<IIIIIHHHH"
 STATUS_FIELDS = ("uptime_ms", "samples", "overruns", "frames", "tx_short",

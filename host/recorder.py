@@ -71,7 +71,7 @@ class Recorder:
         self.log.frames([f.payload for f in frames], host_ns)
         group = []
         for fr in frames:
-            if fr.type == p.SAMPLES:
+            if fr.type in p.SAMPLE_TYPES:
                 group.append(fr)
                 continue
             if group:
@@ -123,7 +123,7 @@ class Recorder:
             if prev is not None:
                 self.missing_samples += (i0 - prev - 1) % p.MOD
             prev = (i0 + n - 1) % p.MOD
-        arr = np.frombuffer(b"".join(f.samples_bytes() for f in frames), dtype=p.SAMPLE_DTYPE)
+        arr = p.samples_from_records((f.version, f.type, f.samples_bytes()) for f in frames)
         host_us = host_ns / 1000.0
         t_mcu = b.ticks.unwrap_array(arr["t_us"], host_us)
         # the last sample was taken before the frame was sent: its host time is an upper bound
@@ -136,8 +136,10 @@ class Recorder:
                  + np.arange(len(arr)) - np.repeat(np.cumsum([0] + counts[:-1]), counts)) % p.MOD
         doc = {"boot": b.id, "n": len(arr), "index": index.tolist(), "t_mcu_us": t_mcu.tolist(),
                "t_host_ns": log_ns.tolist()}
+        four = any(f.type == p.SAMPLES4 for f in frames)
         for name in p.SAMPLE_FIELDS[1:]:
-            doc[name] = arr[name].tolist()
+            if four or not name.startswith("wheel") or name in ("wheel_count", "wheel_t_us"):
+                doc[name] = arr[name].tolist()
         self.log.json("samples", doc, int(log_ns[0]))
         if self.hello:
             self.latest["ay"] = float(units.accel_si(arr["ay"][-1:], self.hello)[0])

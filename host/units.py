@@ -90,3 +90,47 @@ def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int
     slowing = since > 2 * period
     v = np.where(slowing, np.minimum(v, per_pulse / np.maximum(since, 1e-6)), v)
     return v
+
+
+WHEEL_COLUMNS = {"fl": "w_fl", "fr": "w_fr", "rl": "w_rl", "rr": "w_rr"}
+_WHEEL_FIELDS = (("wheel_count", "wheel_t_us"), ("wheel1_count", "wheel1_t_us"),
+                 ("wheel2_count", "wheel2_t_us"), ("wheel3_count", "wheel3_t_us"))
+
+
+def declared_wheels(hello: dict) -> list:
+    """The hall sensors a HELLO declares, in record order: [{pin, pulses_per_rev, wheel}].
+    Protocol 2 lists them in ``wheels``; protocol 1 has the one ``wheel``."""
+    wheels = hello.get("wheels")
+    if wheels is None:
+        wheels = [hello["wheel"]] if isinstance(hello.get("wheel"), dict) else []
+    return list(wheels[:len(_WHEEL_FIELDS)])
+
+
+def wheel_speeds(t_mcu_us, samples, hello: dict, mod: int = 1 << 30) -> dict:
+    """Angular speed [rad/s] of every wheel the HELLO declares, from its hall pulses.
+
+    ``t_mcu_us`` is the unwrapped sample time, ``samples`` the sample array (fields
+    ``t_us``, ``wheel_count``/``wheel_t_us`` and, for four wheels, ``wheel1_count``
+    ... ``wheel3_t_us``, as ``host.mcap_read.read_log(path).samples`` has them).
+    Returns ``{"w_fl": array, ...}`` keyed by the declared position (``w_<name>`` for
+    a position other than fl, fr, rl, rr, e.g. ``w_rear`` from a protocol 1 HELLO),
+    each by the edge-period method of ``wheel_speed`` with that wheel's
+    ``pulses_per_rev``. A wheel whose fields the samples do not carry (edge time
+    0xFFFFFFFF) is NaN. No wheels declared (no HELLO): an empty dict.
+    """
+    out = {}
+    names = samples.dtype.names
+    for k, w in enumerate(declared_wheels(hello)):
+        pos = str(w.get("wheel", "rl"))
+        key = WHEEL_COLUMNS.get(pos, "w_" + pos)
+        count_f, t_f = _WHEEL_FIELDS[k]
+        if t_f not in names:
+            out[key] = np.full(len(samples), np.nan)
+            continue
+        edge_t = np.asarray(samples[t_f], dtype=np.int64)
+        absent = edge_t == 0xFFFFFFFF
+        # radius 1 m: ground speed per metre of radius is the angular speed
+        v = wheel_speed(t_mcu_us, samples["t_us"], samples[count_f], np.where(absent, 0, edge_t),
+                        int(w.get("pulses_per_rev", 1)), 1.0, mod)
+        out[key] = np.where(absent, np.nan, v)
+    return out

@@ -28,6 +28,16 @@ def test_hot_path_does_not_allocate(stimulus_file):
     _assert_passed(run_micropython(MP_TESTS / "mp_heap.py", stimulus=stimulus_file, board=True))
 
 
+@pytest.mark.parametrize("board", ["pico", "esp32"])
+def test_four_wheel_hot_path_does_not_allocate(tmp_path, board):
+    from conftest import simple_stimulus
+
+    simple_stimulus(tmp_path / "stim4.bin", board=board, four_wheels=True)
+    proc = run_micropython(MP_TESTS / "mp_heap.py", stimulus=tmp_path / "stim4.bin", board=True)
+    _assert_passed(proc)
+    assert "four hall sensors counted" in proc.stdout
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_viper_cobs_and_crc_agree_with_reference_libraries(seed):
     proc = run_micropython(MP_TESTS / "mp_cobs_random.py", 300, seed)

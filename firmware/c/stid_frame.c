@@ -1,4 +1,4 @@
-/* stid wire protocol v1 codec. See stid_frame.h and firmware/PROTOCOL.md. */
+/* stid wire protocol codec (encodes v2, decodes v1 and v2). See stid_frame.h and firmware/PROTOCOL.md. */
 #include "stid_frame.h"
 
 #include <string.h>
@@ -89,11 +89,20 @@ size_t stid_encode_frame(uint8_t type, uint32_t seq, uint32_t t_us, const uint8_
     return stid_cobs_encode(raw, n + STID_CRC_SIZE, wire);
 }
 
-size_t stid_pack_samples(uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body) {
+size_t stid_record_size(uint8_t version, uint8_t type) {
+    if (version == 1u && type == STID_SAMPLES) return STID_SAMPLE_V1_SIZE;
+    if (version == 2u && type == STID_SAMPLES) return STID_SAMPLE_SIZE;
+    if (version == 2u && type == STID_SAMPLES4) return STID_SAMPLE4_SIZE;
+    return 0;
+}
+
+size_t stid_pack_samples(uint8_t type, uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body) {
+    size_t rs = stid_record_size(STID_VERSION, type);
+    if (rs == 0 || n > (type == STID_SAMPLES4 ? STID_MAX_BATCH4 : STID_MAX_BATCH)) return 0;
     put_u32(body, index % STID_MOD);
     body[4] = n;
     uint8_t *p = body + 5;
-    for (uint8_t i = 0; i < n; i++, p += STID_SAMPLE_SIZE) {
+    for (uint8_t i = 0; i < n; i++, p += rs) {
         put_u32(p, s[i].t_us);
         put_u16(p + 4, s[i].ax);
         put_u16(p + 6, s[i].ay);
@@ -103,11 +112,18 @@ size_t stid_pack_samples(uint32_t index, const stid_sample_t *s, uint8_t n, uint
         put_u16(p + 14, s[i].wheel_count);
         put_u32(p + 16, s[i].wheel_t_us);
         put_u16(p + 20, s[i].vbat);
+        put_u32(p + 22, s[i].steer_t_us);
+        if (type == STID_SAMPLES4) {
+            for (int k = 0; k < 3; k++) {
+                put_u16(p + 26 + 6 * k, s[i].wheel[k].count);
+                put_u32(p + 28 + 6 * k, s[i].wheel[k].t_us);
+            }
+        }
     }
-    return 5u + (size_t)n * STID_SAMPLE_SIZE;
+    return 5u + (size_t)n * rs;
 }
 
-void stid_unpack_sample(const uint8_t *p, stid_sample_t *o) {
+void stid_unpack_sample(uint8_t version, uint8_t type, const uint8_t *p, stid_sample_t *o) {
     o->t_us = get_u32(p);
     o->ax = get_u16(p + 4);
     o->ay = get_u16(p + 6);
@@ -117,6 +133,12 @@ void stid_unpack_sample(const uint8_t *p, stid_sample_t *o) {
     o->wheel_count = get_u16(p + 14);
     o->wheel_t_us = get_u32(p + 16);
     o->vbat = get_u16(p + 20);
+    o->steer_t_us = version >= 2u ? get_u32(p + 22) : STID_STEER_T_UNKNOWN;
+    for (int k = 0; k < 3; k++) {
+        int four = version >= 2u && type == STID_SAMPLES4;
+        o->wheel[k].count = four ? get_u16(p + 26 + 6 * k) : (uint16_t)STID_MISSING;
+        o->wheel[k].t_us = four ? get_u32(p + 28 + 6 * k) : (uint32_t)0xFFFFFFFFul;
+    }
 }
 
 void stid_decoder_init(stid_decoder_t *d) { memset(d, 0, sizeof *d); }
@@ -128,16 +150,20 @@ static int check_frame(stid_decoder_t *d, stid_frame_t *out) {
     size_t body_len = (size_t)n - STID_HEADER_SIZE - STID_CRC_SIZE;
     if (stid_crc32(d->frame, (size_t)n - 4) != get_u32(d->frame + n - 4))
         return d->errors[STID_ERR_CRC]++, 0;
-    if (d->frame[0] != STID_VERSION) return d->errors[STID_ERR_VERSION]++, 0;
+    uint8_t version = d->frame[0];
+    if (version < STID_VERSION_MIN || version > STID_VERSION) return d->errors[STID_ERR_VERSION]++, 0;
     uint8_t type = d->frame[1];
-    if (type == STID_SAMPLES) {
-        if (body_len < 5 || body_len != 5u + STID_SAMPLE_SIZE * d->frame[STID_HEADER_SIZE + 4])
+    if (type == STID_SAMPLES || type == STID_SAMPLES4) {
+        size_t rs = stid_record_size(version, type);
+        if (rs == 0) return d->errors[STID_ERR_TYPE]++, 0;
+        if (body_len < 5 || body_len != 5u + rs * d->frame[STID_HEADER_SIZE + 4])
             return d->errors[STID_ERR_LENGTH]++, 0;
     } else if (type == STID_STATUS) {
         if (body_len != STID_STATUS_SIZE) return d->errors[STID_ERR_LENGTH]++, 0;
     } else if (type != STID_HELLO) {
         return d->errors[STID_ERR_TYPE]++, 0;
     }
+    out->version = version;
     out->type = type;
     out->seq = get_u32(d->frame + 2);
     out->t_us = get_u32(d->frame + 6);

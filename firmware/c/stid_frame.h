@@ -1,4 +1,5 @@
-/* stid wire protocol v1 codec for C firmware (Arduino, pico-sdk) and tools.
+/* stid wire protocol codec for C firmware (Arduino, pico-sdk) and tools.
+ * Encodes version 2; decodes versions 1 and 2.
  * Spec: firmware/PROTOCOL.md. No allocation, no dependencies beyond libc. */
 #ifndef STID_FRAME_H
 #define STID_FRAME_H
@@ -6,18 +7,30 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define STID_VERSION 1u
+#define STID_VERSION 2u    /* what the encoder writes */
+#define STID_VERSION_MIN 1u /* oldest version the decoder reads */
 #define STID_HELLO 1u
 #define STID_SAMPLES 2u
 #define STID_STATUS 3u
+#define STID_SAMPLES4 4u /* version 2: samples with four hall sensors */
 #define STID_MOD (1ul << 30)
 #define STID_HEADER_SIZE 10u
 #define STID_CRC_SIZE 4u
 #define STID_MAX_FRAME 1024u
 #define STID_MAX_WIRE (STID_MAX_FRAME + STID_MAX_FRAME / 254u + 2u)
-#define STID_SAMPLE_SIZE 22u
+#define STID_SAMPLE_SIZE 26u    /* version 2, SAMPLES */
+#define STID_SAMPLE4_SIZE 44u   /* version 2, SAMPLES4 */
+#define STID_SAMPLE_V1_SIZE 22u /* version 1, SAMPLES */
+#define STID_MAX_BATCH 38u      /* SAMPLES records per frame */
+#define STID_MAX_BATCH4 22u     /* SAMPLES4 records per frame */
 #define STID_STATUS_SIZE 28u
 #define STID_MISSING 0xFFFFu
+#define STID_STEER_T_UNKNOWN 0xFFFFFFFFul /* steer_t_us of a version 1 record */
+
+typedef struct {
+    uint16_t count;
+    uint32_t t_us;
+} stid_wheel_t;
 
 typedef struct {
     uint32_t t_us;
@@ -26,9 +39,12 @@ typedef struct {
     uint16_t wheel_count;
     uint32_t wheel_t_us;
     uint16_t vbat;
+    uint32_t steer_t_us;    /* ticks of the falling edge of the pulse whose width is steer_us */
+    stid_wheel_t wheel[3];  /* hall sensors 1..3: SAMPLES4 only (count 0xFFFF, t_us 0xFFFFFFFF if absent) */
 } stid_sample_t;
 
 typedef struct {
+    uint8_t version;
     uint8_t type;
     uint32_t seq;
     uint32_t t_us;
@@ -64,9 +80,15 @@ long stid_cobs_decode(const uint8_t *src, size_t len, uint8_t *dst);
 size_t stid_encode_frame(uint8_t type, uint32_t seq, uint32_t t_us, const uint8_t *body,
                          size_t body_len, uint8_t *wire);
 
-/* Pack n samples into a SAMPLES body (5 + 22 n bytes). Returns the body length. */
-size_t stid_pack_samples(uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body);
-void stid_unpack_sample(const uint8_t *rec, stid_sample_t *out);
+/* Record size of a (version, type), or 0 if that version has no such sample frame. */
+size_t stid_record_size(uint8_t version, uint8_t type);
+
+/* Pack n samples into a version 2 SAMPLES body (type STID_SAMPLES: 5 + 26 n bytes) or
+ * SAMPLES4 body (STID_SAMPLES4: 5 + 44 n). Returns the body length, 0 if n is too large. */
+size_t stid_pack_samples(uint8_t type, uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body);
+/* Unpack one record of a (version, type) frame; fields the layout lacks are set to
+ * their "absent" values. */
+void stid_unpack_sample(uint8_t version, uint8_t type, const uint8_t *rec, stid_sample_t *out);
 
 /* Streaming decoder: feed bytes one at a time; it never fails on bad input. */
 typedef struct {

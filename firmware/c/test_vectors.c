@@ -40,8 +40,8 @@ static size_t unhex(const char *s, uint8_t *out, size_t cap) {
     return n;
 }
 
-static void run_case(const char *name, const uint8_t *wire, size_t wire_len, expected_frame_t *exp,
-                     int n_exp, const uint32_t *exp_err) {
+static void run_case(const char *name, unsigned version, const uint8_t *wire, size_t wire_len,
+                     expected_frame_t *exp, int n_exp, const uint32_t *exp_err) {
     static stid_decoder_t d;
     stid_decoder_init(&d);
     stid_frame_t f;
@@ -51,18 +51,31 @@ static void run_case(const char *name, const uint8_t *wire, size_t wire_len, exp
             CHECK(got < n_exp, "%s: more frames than expected", name);
             if (got < n_exp) {
                 expected_frame_t *e = &exp[got];
-                CHECK(f.type == e->type && f.seq == e->seq && f.t_us == e->t_us,
+                CHECK(f.type == e->type && f.seq == e->seq && f.t_us == e->t_us && f.version == version,
                       "%s: frame %d header differs", name, got);
                 CHECK(f.body_len == e->body_len && memcmp(f.body, e->body, e->body_len) == 0,
                       "%s: frame %d body differs", name, got);
-                if (f.type == STID_SAMPLES) { /* unpack and repack every sample record */
+                if (f.type == STID_SAMPLES || f.type == STID_SAMPLES4) { /* unpack every sample record */
                     uint8_t n = f.body[4];
-                    stid_sample_t s[40];
+                    size_t rs = stid_record_size(f.version, f.type);
+                    static stid_sample_t s[40];
                     uint8_t again[STID_MAX_FRAME];
                     uint32_t index = f.body[0] | f.body[1] << 8 | f.body[2] << 16 | (uint32_t)f.body[3] << 24;
-                    for (uint8_t k = 0; k < n; k++) stid_unpack_sample(f.body + 5 + k * STID_SAMPLE_SIZE, &s[k]);
-                    size_t bl = stid_pack_samples(index, s, n, again);
-                    CHECK(bl == f.body_len && memcmp(again, f.body, bl) == 0, "%s: sample repack differs", name);
+                    CHECK(rs > 0 && n <= 40, "%s: record layout", name);
+                    for (uint8_t k = 0; k < n && k < 40; k++) stid_unpack_sample(f.version, f.type, f.body + 5 + k * rs, &s[k]);
+                    if (f.version == STID_VERSION) { /* and repack them: the encoder writes this version */
+                        size_t bl = stid_pack_samples(f.type, index, s, n, again);
+                        CHECK(bl == f.body_len && memcmp(again, f.body, bl) == 0, "%s: sample repack differs", name);
+                    } else { /* an old record: unknown steer time, no extra wheels */
+                        CHECK(n == 0 || (s[0].steer_t_us == STID_STEER_T_UNKNOWN && s[0].wheel[2].t_us == 0xFFFFFFFFul),
+                              "%s: version 1 record's absent fields", name);
+                    }
+                    if (f.type == STID_SAMPLES4 && n > 0) /* the last field of the record: wheel 3's edge time */
+                        CHECK(s[n - 1].wheel[2].t_us == (uint32_t)(f.body[5 + (n - 1) * rs + 40] |
+                                                                   f.body[5 + (n - 1) * rs + 41] << 8 |
+                                                                   f.body[5 + (n - 1) * rs + 42] << 16 |
+                                                                   (uint32_t)f.body[5 + (n - 1) * rs + 43] << 24),
+                              "%s: wheel 3 edge time", name);
                 }
             }
             got++;
@@ -98,14 +111,18 @@ int main(int argc, char **argv) {
     char name[128] = "";
     size_t wire_len = 0;
     int n_exp = 0, cases = 0, encode = 0;
+    unsigned version = STID_VERSION;
     uint32_t exp_err[STID_ERR_COUNT];
     while (fgets(line, sizeof line, fp)) {
         if (strncmp(line, "case ", 5) == 0) {
             sscanf(line + 5, "%127s", name);
             n_exp = 0;
             encode = 0;
+            version = STID_VERSION;
             wire_len = 0;
             memset(exp_err, 0, sizeof exp_err);
+        } else if (strncmp(line, "version ", 8) == 0) {
+            sscanf(line + 8, "%u", &version);
         } else if (strncmp(line, "wire ", 5) == 0) {
             wire_len = unhex(line + 5, wire, sizeof wire);
         } else if (strncmp(line, "frame ", 6) == 0) {
@@ -134,8 +151,8 @@ int main(int argc, char **argv) {
         } else if (strncmp(line, "encode", 6) == 0) {
             encode = 1; /* the wire is exactly the encoding of the frames listed */
         } else if (strncmp(line, "end", 3) == 0) {
-            run_case(name, wire, wire_len, exp, n_exp, exp_err);
-            if (encode) check_encoder(name, wire, wire_len, exp, n_exp);
+            run_case(name, version, wire, wire_len, exp, n_exp, exp_err);
+            if (encode && version == STID_VERSION) check_encoder(name, wire, wire_len, exp, n_exp);
             cases++;
         }
     }

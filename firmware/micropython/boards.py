@@ -11,6 +11,14 @@
 # converts ~0.15-2.45 V linearly only, and the reference is not the sensor supply,
 # so we send read_uv() in millivolts and HELLO states the clip voltage. An ADXL335
 # on 3.3 V swings to 2.64 V at +3 g: beyond +2.4 g (x, y) the reading clips.
+#
+# Hall wheel sensors: `wheel_pins` (one, the default) or `wheel_pins4` (all four
+# wheels, App(wheels=4)), position -> pin; positions fl, fr, rl, rr. Records carry
+# them in that order. `wheel_ppr`: magnets (pulses) per wheel revolution.
+#
+# Analog bandwidth, declared in HELLO: the ADXL335's output filter is its internal
+# 32 kOhm with the board's output capacitor, f = 5 uF / C (`accel_cap_nf` = 100 nF =
+# 0.1 uF -> 50 Hz); the LISY300AL filters internally at 88 Hz.
 from machine import ADC, Pin
 
 PROFILES = {
@@ -19,7 +27,10 @@ PROFILES = {
         "adc_clip_v": None,
         "pins": {"ax": 26, "ay": 27, "az": None, "yaw": 28, "vbat": None},
         "steer_pin": 2,
-        "wheel_pin": 3,
+        "wheel_pins": {"rl": 3},
+        "wheel_pins4": {"fl": 4, "fr": 5, "rl": 3, "rr": 6},
+        "wheel_ppr": 1,
+        "accel_cap_nf": 100,
         "timer_id": -1,
         "hard_timer": True,
     },
@@ -28,7 +39,10 @@ PROFILES = {
         "adc_clip_v": 2.45,
         "pins": {"ax": 32, "ay": 33, "az": 34, "yaw": 35, "vbat": 36},
         "steer_pin": 25,
-        "wheel_pin": 26,
+        "wheel_pins": {"rl": 26},
+        "wheel_pins4": {"fl": 27, "fr": 14, "rl": 26, "rr": 13},
+        "wheel_ppr": 1,
+        "accel_cap_nf": 100,
         "timer_id": 0,
         "hard_timer": False,
     },
@@ -42,6 +56,8 @@ PARTS = {
     "vbat": ("divider", "absolute"),
 }
 CHANNELS = ("ax", "ay", "az", "yaw", "vbat")
+WHEELS = ("fl", "fr", "rl", "rr")  # record order of the hall sensors
+GYRO_BANDWIDTH_HZ = 88  # LISY300AL internal low-pass
 
 
 def _missing():
@@ -76,9 +92,39 @@ def open_channels(name):
     return profile, readers
 
 
+def bandwidth_hz(profile, ch):
+    """First-order output filter of a channel's sensor [Hz], or None (unknown/none)."""
+    part = PARTS[ch][0]
+    if part == "ADXL335":
+        nf = profile["accel_cap_nf"]  # f = 5 uF / C_out (32 kOhm internal)
+        return (5000 + nf // 2) // nf
+    if part == "LISY300AL":
+        return GYRO_BANDWIDTH_HZ
+    return None
+
+
 def channel_map(profile):
     out = {}
     for ch in CHANNELS:
         pin = profile["pins"][ch]
-        out[ch] = None if pin is None else {"pin": pin, "part": PARTS[ch][0], "out": PARTS[ch][1]}
+        out[ch] = None if pin is None else {"pin": pin, "part": PARTS[ch][0], "out": PARTS[ch][1],
+                                            "bandwidth_hz": bandwidth_hz(profile, ch)}
+    return out
+
+
+def wheel_list(profile, wheel_pins=None):
+    """The hall sensors in record order: [(position, pin), ...], one or four.
+
+    wheel_pins: None (the profile's one sensor), 4 (the profile's four), or a dict
+    position -> pin."""
+    if wheel_pins is None:
+        wheel_pins = profile["wheel_pins"]
+    elif wheel_pins == 4:
+        wheel_pins = profile["wheel_pins4"]
+    for k in wheel_pins:
+        if k not in WHEELS:
+            raise ValueError("wheel position must be one of fl, fr, rl, rr, not " + str(k))
+    out = [(k, wheel_pins[k]) for k in WHEELS if k in wheel_pins]
+    if len(out) not in (1, 4):
+        raise ValueError("one or four hall sensors are supported, not %d" % len(out))
     return out

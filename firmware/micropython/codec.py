@@ -8,18 +8,23 @@ import micropython
 import struct
 from micropython import const
 
-VERSION = const(1)
+VERSION = const(2)
 HELLO = const(1)
-SAMPLES = const(2)
+SAMPLES = const(2)  # records of SAMPLE_SIZE: one hall sensor
 STATUS = const(3)
+SAMPLES4 = const(4)  # records of SAMPLE4_SIZE: four hall sensors
 MASK30 = const(0x3FFFFFFF)
 HEADER_SIZE = const(10)
 SAMPLES_HEAD = const(5)
-SAMPLE_SIZE = const(22)
+SAMPLE_SIZE = const(26)
+SAMPLE4_SIZE = const(44)
 STATUS_SIZE = const(28)
 MAX_FRAME = const(1024)
 MAX_WIRE = const(1030)  # COBS worst case for 1024 bytes + delimiter
-SAMPLE_FMT = "<IHHHHHHIH"
+# t_us ax ay az yaw steer_us wheel_count wheel_t_us vbat steer_t_us
+SAMPLE_FMT = "<IHHHHHHIHI"
+# appended in SAMPLES4 records: (count, t_us) of wheels 1, 2, 3
+WHEELS3_FMT = "<HIHIHI"
 STATUS_FMT = "<IIIIIHHHH"
 
 
@@ -126,8 +131,14 @@ class FrameEncoder:
                          min(isr_max_us, 0xFFFF), min(isr_last_us, 0xFFFF), ring_peak, ring_size)
         return self.finish(STATUS_SIZE)
 
-    def samples_begin(self, t_us, index, n):
-        # The caller then copies n 22-byte records to raw[15:15+22n].
-        self.header(SAMPLES, t_us)
+    def samples_begin(self, t_us, index, n, ftype=SAMPLES):
+        # The caller then copies n records (SAMPLE_SIZE, or SAMPLE4_SIZE for SAMPLES4)
+        # to raw[15:].
+        self.header(ftype, t_us)
         struct.pack_into("<IB", self.raw, HEADER_SIZE, index & MASK30, n)
         return HEADER_SIZE + SAMPLES_HEAD
+
+
+def max_batch(record_size):
+    # Most records that fit one frame: 38 of SAMPLE_SIZE, 22 of SAMPLE4_SIZE.
+    return (MAX_FRAME - HEADER_SIZE - 4 - SAMPLES_HEAD) // record_size

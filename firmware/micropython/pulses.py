@@ -18,19 +18,21 @@ def _irq(pin, handler, trigger):
 
 
 class ServoPulse:
-    """Width of the steering servo pulse (the receiver's command), in us."""
+    """Width of the steering servo pulse (the receiver's command), in us, and the
+    ticks of its falling edge: the instant the servo takes the command."""
 
     def __init__(self, pin_no, timeout_us):
         self.pin = Pin(pin_no, Pin.IN)
         self.timeout_us = timeout_us
         self.width = 0
         self.t_fall = 0
+        self.t_read = 0  # falling edge of the pulse the last read() returned
         self._t_rise = 0
         self._high = False
         _irq(self.pin, self._edge, Pin.IRQ_RISING | Pin.IRQ_FALLING)
 
     def _edge(self, pin):
-        t = time.ticks_us()
+        t = time.ticks_us() & _MASK30
         if pin.value():
             self._t_rise = t
             self._high = True
@@ -42,10 +44,20 @@ class ServoPulse:
                 self.t_fall = t
 
     def read(self, now):
-        # 0 when no valid pulse arrived within the timeout (receiver off, servo unplugged).
-        if time.ticks_diff(now, self.t_fall) > self.timeout_us:
+        # Width of the latest valid pulse; its falling edge is left in t_read. 0 when no
+        # valid pulse arrived within the timeout (receiver off, servo unplugged).
+        # Width and edge time must belong to the same pulse even where the pin IRQ can
+        # run between two reads (a hard pin IRQ during the ESP32's scheduled sampler):
+        # re-read if the edge time changed meanwhile (the IRQ writes width first).
+        tf = self.t_fall
+        w = self.width
+        while self.t_fall != tf:
+            tf = self.t_fall
+            w = self.width
+        self.t_read = tf
+        if time.ticks_diff(now, tf) > self.timeout_us:
             return 0
-        return self.width
+        return w
 
 
 class HallCounter:

@@ -2,6 +2,10 @@
 # (consumer). Only the producer writes `head`, only the consumer writes `tail`,
 # so no lock is needed. A full ring drops the new sample and counts it: the
 # sampler never waits for a slow host.
+#
+# The producer packs a record straight into the ring: claim() gives the byte
+# offset of the next free slot (or -1 when full), the caller packs the record
+# there with struct.pack_into, and commit() publishes it.
 import struct
 from array import array
 from micropython import const
@@ -12,9 +16,10 @@ _MASK30 = const(0x3FFFFFFF)
 
 
 class SampleRing:
-    def __init__(self, size):
+    def __init__(self, size, record_size=SAMPLE_SIZE):
         self.size = size
-        self.buf = bytearray(size * SAMPLE_SIZE)
+        self.record_size = record_size
+        self.buf = bytearray(size * record_size)
         self.index = array("i", [0] * size)  # sample index held by each slot
         self.head = 0  # slots written, mod 2^30
         self.tail = 0  # slots read, mod 2^30
@@ -24,19 +29,29 @@ class SampleRing:
     def fill(self):
         return (self.head - self.tail) & _MASK30
 
-    def push(self, index, t_us, ax, ay, az, yaw, steer_us, wheel_count, wheel_t_us, vbat):
-        # Called from the sampler interrupt: no allocation, no floats.
+    def claim(self, index):
+        # Called from the sampler interrupt: no allocation, no floats. Returns the
+        # offset in buf where the record of sample `index` goes, or -1 (dropped).
         fill = (self.head - self.tail) & _MASK30
         if fill >= self.size:
             self.overruns += 1
-            return
+            return -1
         slot = self.head % self.size
-        struct.pack_into(SAMPLE_FMT, self.buf, slot * SAMPLE_SIZE, t_us, ax, ay, az, yaw,
-                         steer_us, wheel_count, wheel_t_us, vbat)
         self.index[slot] = index
-        self.head = (self.head + 1) & _MASK30
         if fill + 1 > self.peak:
             self.peak = fill + 1
+        return slot * self.record_size
+
+    def commit(self):
+        self.head = (self.head + 1) & _MASK30
+
+    def push(self, index, t_us, ax, ay, az, yaw, steer_us, wheel_count, wheel_t_us, vbat, steer_t_us):
+        # A one-wheel record in one call (tests and simple callers).
+        off = self.claim(index)
+        if off >= 0:
+            struct.pack_into(SAMPLE_FMT, self.buf, off, t_us, ax, ay, az, yaw, steer_us,
+                             wheel_count, wheel_t_us, vbat, steer_t_us)
+            self.commit()
 
     def run_length(self, limit):
         # How many of the oldest samples (at most `limit`) have consecutive indices;
@@ -63,11 +78,12 @@ class SampleRing:
 
     def pop_into(self, dst, offset, n):
         # Copy the n oldest records to dst[offset:], then release them.
+        rs = self.record_size
         slot = self.tail % self.size
         first = self.size - slot
         if first > n:
             first = n
-        copy_bytes(dst, offset, self.buf, slot * SAMPLE_SIZE, first * SAMPLE_SIZE)
+        copy_bytes(dst, offset, self.buf, slot * rs, first * rs)
         if n > first:
-            copy_bytes(dst, offset + first * SAMPLE_SIZE, self.buf, 0, (n - first) * SAMPLE_SIZE)
+            copy_bytes(dst, offset + first * rs, self.buf, 0, (n - first) * rs)
         self.tail = (self.tail + n) & _MASK30

@@ -8,6 +8,10 @@ decoders cannot leak into the reference they are tested against.
 
 ``vectors.json`` is read by the Python and MicroPython tests; ``vectors.txt`` is
 the same content in a line format the C test reads without a JSON parser.
+
+Every case names the protocol version its frames carry. Version 2 is what the
+firmware sends; the version 1 cases stay so that every decoder keeps reading
+old streams and logs (PROTOCOL.md, "Versions").
 """
 
 import json
@@ -19,10 +23,14 @@ from cobs import cobs
 
 HERE = Path(__file__).resolve().parent
 MOD = 1 << 30
-VERSION = 1
-HELLO, SAMPLES, STATUS = 1, 2, 3
-SAMPLE_FIELDS = ("t_us", "ax", "ay", "az", "yaw", "steer_us", "wheel_count", "wheel_t_us", "vbat")
-SAMPLE_FMT = "<IHHHHHHIH"
+VERSION = 2
+HELLO, SAMPLES, STATUS, SAMPLES4 = 1, 2, 3, 4
+SAMPLE_FIELDS_V1 = ("t_us", "ax", "ay", "az", "yaw", "steer_us", "wheel_count", "wheel_t_us", "vbat")
+SAMPLE_FMT_V1 = "<IHHHHHHIH"
+SAMPLE_FIELDS = SAMPLE_FIELDS_V1 + ("steer_t_us",)  # version 2, SAMPLES: 26 bytes
+SAMPLE_FMT = SAMPLE_FMT_V1 + "I"
+WHEELS3_FIELDS = ("wheel1_count", "wheel1_t_us", "wheel2_count", "wheel2_t_us", "wheel3_count", "wheel3_t_us")
+WHEELS3_FMT = "<HIHIHI"  # appended in version 2 SAMPLES4 records: 44 bytes
 STATUS_FIELDS = ("uptime_ms", "samples", "overruns", "frames", "tx_short",
                  "isr_max_us", "isr_last_us", "ring_peak", "ring_size")
 STATUS_FMT = "<IIIIIHHHH"
@@ -37,10 +45,15 @@ def wire(frame):
     return cobs.encode(frame) + b"\x00"
 
 
-def samples_body(index, samples):
+def samples_body(index, samples, version=VERSION, four=False):
     body = struct.pack("<IB", index, len(samples))
     for s in samples:
+        if version == 1:
+            body += struct.pack(SAMPLE_FMT_V1, *(s[k] for k in SAMPLE_FIELDS_V1))
+            continue
         body += struct.pack(SAMPLE_FMT, *(s[k] for k in SAMPLE_FIELDS))
+        if four:
+            body += struct.pack(WHEELS3_FMT, *(s[k] for k in WHEELS3_FIELDS))
     return body
 
 
@@ -48,13 +61,20 @@ def status_body(st):
     return struct.pack(STATUS_FMT, *(st[k] for k in STATUS_FIELDS))
 
 
-def sample(i, t0=1000, dt=2000):
-    return {"t_us": (t0 + i * dt) % MOD, "ax": 2048 + i, "ay": 1900 - 7 * i, "az": 0xFFFF,
-            "yaw": 2047 + 3 * i, "steer_us": 1500 + i, "wheel_count": (65530 + i) % 65536,
-            "wheel_t_us": (t0 + i * dt - 300) % MOD, "vbat": 0xFFFF}
+def sample(i, t0=1000, dt=2000, version=VERSION, four=False):
+    s = {"t_us": (t0 + i * dt) % MOD, "ax": 2048 + i, "ay": 1900 - 7 * i, "az": 0xFFFF,
+         "yaw": 2047 + 3 * i, "steer_us": 1500 + i, "wheel_count": (65530 + i) % 65536,
+         "wheel_t_us": (t0 + i * dt - 300) % MOD, "vbat": 0xFFFF}
+    if version >= 2:
+        s["steer_t_us"] = (t0 + i * dt - 20000 + 7 * i) % MOD  # falling edge of the pulse, before t_us
+    if four:
+        for k in (1, 2, 3):
+            s[f"wheel{k}_count"] = (100 * k + i) % 65536
+            s[f"wheel{k}_t_us"] = (t0 + i * dt - 100 * k) % MOD
+    return s
 
 
-HELLO_DOC = {
+HELLO_DOC_V1 = {
     "proto": 1, "fw": "0.1.0", "board": "pico", "boot_id": "9f3a51c2", "rate_hz": 500,
     "batch": 10, "mod": MOD,
     "adc": {"bits": 12, "vref": 3.3, "unit": "count"}, "adc_clip_v": None,
@@ -69,6 +89,23 @@ HELLO_DOC = {
     "wheel": {"pin": 3, "pulses_per_rev": 1, "wheel": "rear"},
 }
 
+_WHEELS4 = [{"pin": 4, "pulses_per_rev": 1, "wheel": "fl"}, {"pin": 5, "pulses_per_rev": 1, "wheel": "fr"},
+            {"pin": 3, "pulses_per_rev": 1, "wheel": "rl"}, {"pin": 6, "pulses_per_rev": 1, "wheel": "rr"}]
+HELLO_DOC = {
+    "proto": 2, "fw": "0.2.0", "board": "pico", "boot_id": "9f3a51c2", "rate_hz": 500,
+    "batch": 10, "mod": MOD,
+    "adc": {"bits": 12, "vref": 3.3, "unit": "count"}, "adc_clip_v": None,
+    "channels": {
+        "ax": {"pin": 26, "part": "ADXL335", "out": "ratiometric", "bandwidth_hz": 50},
+        "ay": {"pin": 27, "part": "ADXL335", "out": "ratiometric", "bandwidth_hz": 50},
+        "az": None,
+        "yaw": {"pin": 28, "part": "LISY300AL", "out": "absolute", "bandwidth_hz": 88},
+        "vbat": None,
+    },
+    "steer": {"pin": 2, "period_us": 20000, "timeout_us": 100000},
+    "wheel": _WHEELS4[0], "wheels": _WHEELS4,
+}
+
 
 def frame_entry(ftype, seq, t_us, body, decoded):
     return {"type": ftype, "seq": seq, "t_us": t_us, "body": body.hex(), "decoded": decoded}
@@ -77,13 +114,14 @@ def frame_entry(ftype, seq, t_us, body, decoded):
 def build_cases():
     cases = []
 
-    def ok(name, entries, note=""):
-        stream = b"".join(wire(frame_bytes(e["type"], e["seq"], e["t_us"], bytes.fromhex(e["body"]))) for e in entries)
-        cases.append({"name": name, "note": note, "wire": stream.hex(), "frames": entries,
+    def ok(name, entries, note="", version=VERSION):
+        stream = b"".join(wire(frame_bytes(e["type"], e["seq"], e["t_us"], bytes.fromhex(e["body"]), version))
+                          for e in entries)
+        cases.append({"name": name, "version": version, "note": note, "wire": stream.hex(), "frames": entries,
                       "errors": {}, "encode": True})
 
     hello_body = json.dumps(HELLO_DOC, separators=(",", ":")).encode()
-    ok("hello", [frame_entry(HELLO, 0, 12345, hello_body, HELLO_DOC)])
+    ok("hello", [frame_entry(HELLO, 0, 12345, hello_body, HELLO_DOC)], "four wheels, channel bandwidths")
 
     s1 = [sample(0)]
     ok("samples_1", [frame_entry(SAMPLES, 1, 2100, samples_body(0, s1), {"index": 0, "samples": s1})])
@@ -93,7 +131,7 @@ def build_cases():
 
     # Values just below the 2^30 wrap, and zero bytes everywhere COBS must stuff them.
     sw = [{"t_us": MOD - 1, "ax": 0, "ay": 0xFFFF, "az": 0x0100, "yaw": 0x00FF, "steer_us": 0,
-           "wheel_count": 0, "wheel_t_us": MOD - 2, "vbat": 0}]
+           "wheel_count": 0, "wheel_t_us": MOD - 2, "vbat": 0, "steer_t_us": 0}]
     ok("samples_wrap_zeros", [frame_entry(SAMPLES, MOD - 1, MOD - 1, samples_body(MOD - 1, sw),
                                           {"index": MOD - 1, "samples": sw})],
        "counters at 2^30 - 1 and many zero bytes")
@@ -102,10 +140,32 @@ def build_cases():
           "isr_max_us": 95, "isr_last_us": 41, "ring_peak": 37, "ring_size": 256}
     ok("status", [frame_entry(STATUS, 7, 99000, status_body(st), st)])
 
-    # Longest legal SAMPLES frame (40 samples, 895 bytes): COBS needs a second code block.
-    s40 = [sample(i, t0=5, dt=1000) for i in range(40)]
-    ok("samples_40", [frame_entry(SAMPLES, 8, 42000, samples_body(400, s40), {"index": 400, "samples": s40})],
-       "longest legal frame, COBS code block boundary")
+    # Longest legal SAMPLES frame: 38 samples, 1007 bytes.
+    s38 = [sample(i, t0=5, dt=1000) for i in range(38)]
+    ok("samples_38", [frame_entry(SAMPLES, 8, 42000, samples_body(400, s38), {"index": 400, "samples": s38})],
+       "longest legal SAMPLES frame (1007 bytes)")
+
+    s4 = [sample(i, four=True) for i in range(3)]
+    ok("samples4_3", [frame_entry(SAMPLES4, 9, 43000, samples_body(500, s4, four=True),
+                                  {"index": 500, "samples": s4})], "four hall sensors")
+    s4w = [dict(sw[0], wheel1_count=0, wheel1_t_us=MOD - 1, wheel2_count=0xFFFF, wheel2_t_us=0,
+                wheel3_count=0x0100, wheel3_t_us=0x00FF0000)]
+    ok("samples4_wrap_zeros", [frame_entry(SAMPLES4, 10, 5, samples_body(MOD - 1, s4w, four=True),
+                                           {"index": MOD - 1, "samples": s4w})], "four wheels, zero bytes")
+    s22 = [sample(i, t0=5, dt=1000, four=True) for i in range(22)]
+    ok("samples4_22", [frame_entry(SAMPLES4, 11, 44000, samples_body(600, s22, four=True),
+                                   {"index": 600, "samples": s22})], "longest legal SAMPLES4 frame")
+
+    # Version 1 frames: every receiver still decodes them (old firmware, old logs).
+    hello1 = json.dumps(HELLO_DOC_V1, separators=(",", ":")).encode()
+    ok("v1_hello", [frame_entry(HELLO, 0, 12345, hello1, HELLO_DOC_V1)], "protocol 1 HELLO", version=1)
+    v10 = [sample(i, version=1) for i in range(10)]
+    ok("v1_samples_10", [frame_entry(SAMPLES, 2, 21000, samples_body(10, v10, version=1),
+                                     {"index": 10, "samples": v10})], "protocol 1: 22-byte records", version=1)
+    v40 = [sample(i, t0=5, dt=1000, version=1) for i in range(40)]
+    ok("v1_samples_40", [frame_entry(SAMPLES, 8, 42000, samples_body(400, v40, version=1),
+                                     {"index": 400, "samples": v40})], "protocol 1 longest frame", version=1)
+    ok("v1_status", [frame_entry(STATUS, 7, 99000, status_body(st), st)], "protocol 1 STATUS", version=1)
 
     good_a = frame_entry(SAMPLES, 20, 5000, samples_body(100, s1), {"index": 100, "samples": s1})
     good_b = frame_entry(STATUS, 21, 6000, status_body(st), st)
@@ -113,7 +173,7 @@ def build_cases():
     wb = wire(frame_bytes(STATUS, 21, 6000, bytes.fromhex(good_b["body"])))
 
     def broken(name, stream, frames, errors, note):
-        cases.append({"name": name, "note": note, "wire": stream.hex(), "frames": frames,
+        cases.append({"name": name, "version": VERSION, "note": note, "wire": stream.hex(), "frames": frames,
                       "errors": errors, "encode": False})
 
     bad = bytearray(frame_bytes(SAMPLES, 20, 5000, bytes.fromhex(good_a["body"])))
@@ -122,16 +182,32 @@ def build_cases():
            "one flipped body bit, re-stuffed so COBS is intact: only the CRC can catch it")
     broken("garbage_then_frame", b"\x13\x37\xff\xfe\x01" + wb + wa, [good_a], {"crc": 1},
            "noise glued to the front of a frame spoils that frame; the one after it is recovered")
-    broken("truncated_frame", wa[:len(wa) // 2] + wb, [], {"crc": 1},
+    glued = wa[:len(wa) // 2] + wb
+    try:  # whether the glued chunk still parses as COBS depends on the bytes: ask the reference
+        cobs.decode(glued[:-1])
+        kind = "crc"
+    except cobs.DecodeError:
+        kind = "cobs"
+    broken("truncated_frame", glued, [], {kind: 1},
            "the first half of a frame runs into the next frame: one corrupt chunk, both lost")
     broken("truncated_then_delim", wa[:len(wa) // 2] + b"\x00" + wb, [good_b], {"cobs": 1},
            "a frame cut short and followed by a delimiter: the next frame survives")
-    broken("bad_version", wire(frame_bytes(STATUS, 21, 6000, status_body(st), version=2)) + wa, [good_a],
-           {"version": 1}, "unknown protocol version")
+    broken("bad_version", wire(frame_bytes(STATUS, 21, 6000, status_body(st), version=3)) + wa, [good_a],
+           {"version": 1}, "unknown protocol version (3)")
+    broken("bad_version_0", wire(frame_bytes(STATUS, 21, 6000, status_body(st), version=0)) + wa, [good_a],
+           {"version": 1}, "unknown protocol version (0)")
     broken("bad_type", wire(frame_bytes(9, 21, 6000, status_body(st))) + wa, [good_a], {"type": 1},
            "unknown frame type")
+    broken("v1_samples4", wire(frame_bytes(SAMPLES4, 21, 6000, samples_body(0, s4, four=True), version=1)) + wa,
+           [good_a], {"type": 1}, "SAMPLES4 does not exist in protocol 1")
     broken("bad_length", wire(frame_bytes(SAMPLES, 21, 6000, samples_body(0, s1) + b"\x01")) + wa, [good_a],
-           {"length": 1}, "SAMPLES body one byte longer than 5 + 22 n")
+           {"length": 1}, "SAMPLES body one byte longer than 5 + 26 n")
+    broken("v1_length_in_v2", wire(frame_bytes(SAMPLES, 21, 6000, samples_body(0, v10[:2], version=1))) + wa,
+           [good_a], {"length": 1}, "22-byte records under version 2: 5 + 44 is not 5 + 26 n")
+    broken("v2_length_in_v1", wire(frame_bytes(SAMPLES, 21, 6000, samples_body(0, s10[:11]), version=1)) + wa,
+           [good_a], {"length": 1}, "26-byte records under version 1")
+    broken("bad_length4", wire(frame_bytes(SAMPLES4, 21, 6000, samples_body(0, s1))) + wa, [good_a],
+           {"length": 1}, "a 26-byte record in a SAMPLES4 frame (5 + 44 n expected)")
     broken("short", wire(b"\x01\x02\x03") + wa, [good_a], {"short": 1}, "shorter than header + CRC")
     broken("bad_cobs", bytes([0x09, 0x41, 0x42, 0x00]) + wa, [good_a], {"cobs": 1},
            "a COBS code byte that points past the end of the frame")
@@ -146,6 +222,7 @@ def write_txt(cases, path):
     lines = ["# stid golden vectors (generated by make_vectors.py; do not edit)"]
     for c in cases:
         lines.append(f"case {c['name']}")
+        lines.append(f"version {c['version']}")
         lines.append(f"wire {c['wire']}")
         for f in c["frames"]:
             lines.append(f"frame {f['type']} {f['seq']} {f['t_us']} {f['body']}")
@@ -159,7 +236,8 @@ def write_txt(cases, path):
 
 def main():
     cases = build_cases()
-    doc = {"protocol": 1, "sample_fields": SAMPLE_FIELDS, "status_fields": STATUS_FIELDS, "cases": cases}
+    doc = {"protocol": VERSION, "sample_fields": SAMPLE_FIELDS, "wheels3_fields": WHEELS3_FIELDS,
+           "sample_fields_v1": SAMPLE_FIELDS_V1, "status_fields": STATUS_FIELDS, "cases": cases}
     (HERE / "vectors.json").write_text(json.dumps(doc, indent=1) + "\n")
     write_txt(cases, HERE / "vectors.txt")
     print(f"wrote {len(cases)} cases")

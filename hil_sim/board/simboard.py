@@ -24,7 +24,7 @@ _FAR = 1 << 62
 class _Stim:
     def __init__(self, path):
         with open(path, "rb") as f:
-            if f.read(8) != b"STIDSIM1":
+            if f.read(8) != b"STIDSIM2":
                 raise OSError("not a stid stimulus file: " + path)
             (hlen,) = struct.unpack("<I", f.read(4))
             h = json.loads(f.read(hlen))
@@ -38,8 +38,12 @@ class _Stim:
             f.readinto(self.volts)
             self.steer = array("H", bytearray(2 * h["n_steer"]))
             f.readinto(self.steer)
+            self.steer_rise = array("I", bytearray(4 * h["n_steer"]))
+            f.readinto(self.steer_rise)
             self.hall = array("I", bytearray(4 * h["n_hall"]))
             f.readinto(self.hall)
+            self.hall_pin = bytearray(h["n_hall"])  # pin of each hall edge
+            f.readinto(self.hall_pin)
         self.duration_us = h["duration_us"]
 
 
@@ -58,17 +62,15 @@ class Board:
         self.timer_obj = None
         self.pin_level = {}
         self.irq = {}  # pin number -> (handler, trigger mask, Pin object)
-        # steering servo edges: rising at phase + k*period, falling width later
+        # steering servo edges: rising at the receiver's times, falling a width later
         self.steer_pin = s.h["steer_pin"]
-        self.steer_period = s.h["steer_period_us"]
-        self.steer_phase = s.h["steer_phase_us"]
         self.steer_k = 0
         self.steer_high = False
-        self.hall_pin = s.h["hall_pin"]
         self.hall_i = 0
         # every key present up front: a first insert while firing events would allocate
         self.pin_level[self.steer_pin] = 0
-        self.pin_level[self.hall_pin] = 1
+        for pin in s.h["hall_pins"]:
+            self.pin_level[pin] = 1
         self.stalls = s.h.get("stalls", [])
         self.stall_i = 0
         self.row = -1
@@ -84,7 +86,7 @@ class Board:
     def _next_steer(self):
         if self.steer_k >= len(self.stim.steer):
             return _FAR
-        t = self.steer_phase + self.steer_k * self.steer_period
+        t = self.stim.steer_rise[self.steer_k]
         if self.steer_high:
             t += self.stim.steer[self.steer_k]
         return t
@@ -129,9 +131,10 @@ class Board:
                     self.steer_high = True
                     self._edge(self.steer_pin, 1)
             else:
+                pin = self.stim.hall_pin[self.hall_i]
                 self.hall_i += 1
-                self._edge(self.hall_pin, 0)
-                self.pin_level[self.hall_pin] = 1
+                self._edge(pin, 0)
+                self.pin_level[pin] = 1
         if t_end > self.now:
             self._pace(t_end)
             self.now = t_end

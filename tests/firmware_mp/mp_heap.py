@@ -21,7 +21,7 @@ class Sink:
 
 b = simboard.board()
 sink = Sink()
-fw = app.App(board=b.stim.board, rate_hz=1000, batch=10, ring_size=64, out=sink)
+fw = app.App(board=b.stim.board, rate_hz=1000, batch=10, ring_size=64, out=sink, wheels=b.stim.h.get("wheels"))
 fw.start()
 
 
@@ -45,6 +45,9 @@ samples = fw.sampler.index
 check(samples > 1500, "sampler ran (%d samples)" % samples)
 check(fw.steer.width > 0, "servo pulses captured")
 check(fw.wheel.count > 0, "hall pulses counted")
+check(fw.steer.t_fall > 0, "servo falling edges timed")
+if len(fw.wheels) == 4:
+    check(min(w.count for w in fw.wheels) > 0, "four hall sensors counted")
 
 
 def hello_status():

@@ -9,15 +9,16 @@ r = SampleRing(8)
 
 
 def push(i):
-    r.push(i, 1000 * i, i, i + 1, i + 2, i + 3, 1500, i & 0xFFFF, 7 * i, 0xFFFF)
+    r.push(i, 1000 * i, i, i + 1, i + 2, i + 3, 1500, i & 0xFFFF, 7 * i, 0xFFFF, 999 * i)
 
 
 for i in range(6):
     push(i)
 check(r.fill() == 6 and r.run_length(10) == 6, "fill and run length")
-dst = bytearray(200)
+dst = bytearray(300)
 r.pop_into(dst, 0, 4)
-check(struct.unpack_from(codec.SAMPLE_FMT, dst, 3 * 22)[0] == 3000, "pop keeps order")
+check(struct.unpack_from(codec.SAMPLE_FMT, dst, 3 * 26)[0] == 3000, "pop keeps order")
+check(struct.unpack_from(codec.SAMPLE_FMT, dst, 3 * 26)[9] == 2997, "steer_t_us kept")
 for i in range(6, 12):  # wraps around the end of the buffer
     push(i)
 check(r.fill() == 8 and r.overruns == 0, "full without overrun")
@@ -26,14 +27,26 @@ push(13)
 check(r.overruns == 2 and r.fill() == 8, "overrun counted, sample dropped")
 check(r.first_index() == 4 and r.run_length(40) == 8, "run length over wrap")
 r.pop_into(dst, 5, 8)
-ts = [struct.unpack_from(codec.SAMPLE_FMT, dst, 5 + 22 * k)[0] for k in range(8)]
+ts = [struct.unpack_from(codec.SAMPLE_FMT, dst, 5 + 26 * k)[0] for k in range(8)]
 check(ts == [1000 * i for i in range(4, 12)], "wrap-around copy in order")
 push(14)  # 12 and 13 were dropped: 14 follows a gap
 push(15)
 check(r.first_index() == 14 and r.run_length(40) == 2, "after gap")
 r2 = SampleRing(8)
-r2.push(1, 0, 0, 0, 0, 0, 0, 0, 0, 0)
-r2.push(3, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+r2.push(1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+r2.push(3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
 check(r2.run_length(40) == 1, "a frame never spans an index gap")
 check(r.peak == 8, "peak fill")
+# four-wheel records: the producer packs into the claimed slot, the consumer copies 44 bytes
+r4 = SampleRing(4, codec.SAMPLE4_SIZE)
+for i in range(5):
+    off = r4.claim(i)
+    if off >= 0:
+        struct.pack_into(codec.SAMPLE_FMT, r4.buf, off, i, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+        struct.pack_into(codec.WHEELS3_FMT, r4.buf, off + codec.SAMPLE_SIZE, i, 10 * i, 0, 0, 0, 7 * i)
+        r4.commit()
+check(r4.overruns == 1 and r4.fill() == 4, "four-wheel ring full, one dropped")
+dst4 = bytearray(4 * codec.SAMPLE4_SIZE)
+r4.pop_into(dst4, 0, 4)
+check(struct.unpack_from(codec.WHEELS3_FMT, dst4, 3 * 44 + 26) == (3, 30, 0, 0, 0, 21), "four-wheel record kept")
 done()
