@@ -209,6 +209,12 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     sig = {"steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax}
     if not np.all(np.isnan(az)):
         sig["az"] = az
+    wheels = {k: w for k, w in units.wheel_speeds(t_us, s, hello, int(hello.get("mod", 1 << 30))).items()
+              if k in OPTIONAL and not np.all(np.isnan(w))}
+    if len(wheels) == 4:  # the four wheel speeds study 2's grey-box needs [rad/s]
+        sig.update(wheels)
+        # the rear axle is driven and slips; the free-rolling fronts measure the car's speed
+        sig["vx"] = 0.5 * (wheels["w_fl"] + wheels["w_fr"]) * vehicle.wheel_radius
     valid = None
     if filled:
         # the grid needs a value at every place; these hold it, and are marked not measured
@@ -224,7 +230,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     t = (tu - tu[0]) * 1e-6
     fs = 1e6 / step
     run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig["ax"],
-              extra={k: v for k, v in sig.items() if k == "az"},
+              extra={k: v for k, v in sig.items() if k == "az" or k.startswith("w_")},
               meta={"source": source, "format": "mcap", "hello": hello, "fs": fs,
                     "sensor_chain": sensor_chain.from_hello(hello, vehicle)},
               valid=valid)

@@ -32,8 +32,9 @@ def run_micropython(script: Path, *args, stimulus: Path | None = None, board: bo
 
 
 def simple_stimulus(path: Path, board: str = "pico", seconds: float = 3.0, fs: int = 5000,
-                    start_ticks: int = 0, stalls=()):
-    """A small stimulus with recognisable signals on every pin of the board."""
+                    start_ticks: int = 0, stalls=(), four_wheels: bool = False):
+    """A small stimulus with recognisable signals on every pin of the board (and, with
+    ``four_wheels``, four hall sensors at slightly different rates)."""
     from hil_sim.stimulus import Stimulus
 
     n = int(seconds * fs)
@@ -49,8 +50,14 @@ def simple_stimulus(path: Path, board: str = "pico", seconds: float = 3.0, fs: i
     periods = int(seconds * 50)
     steer = (1500 + 400 * np.sin(np.arange(periods) / 10)).astype(int)
     hall = np.arange(5_000, int(seconds * 1e6), 37_000)
+    halls = None
+    if four_wheels:
+        hp = {"pico": {"fl": 4, "fr": 5, "rl": 3, "rr": 6}, "esp32": {"fl": 27, "fr": 14, "rl": 26, "rr": 13}}[board]
+        halls = {k: (pin, np.arange(5_000 + 1000 * i, int(seconds * 1e6), 37_000 + 500 * i))
+                 for i, (k, pin) in enumerate(hp.items())}
     st = Stimulus(board=board, fs_sig=fs, volts=pins, steer_us=steer, hall_t_us=hall,
-                  steer_pin=steer_pin, hall_pin=hall_pin, start_ticks=start_ticks, stalls=list(stalls))
+                  steer_pin=steer_pin, hall_pin=hall_pin, start_ticks=start_ticks, stalls=list(stalls),
+                  wheel_halls=halls)
     st.write(path)
     return st
 
@@ -73,3 +80,15 @@ def rc_vehicle():
     from stid.vehicle_file import load_vehicle
 
     return load_vehicle(REPO / "docs" / "examples" / "rc8.toml")
+
+
+@pytest.fixture(scope="session")
+def rc_vehicle_csv(rc_vehicle):
+    """The reference car for the simulator's CSV files: a CSV carries no sensor chain, and the
+    simulated sensors' outputs went through the ADXL335's 50 Hz and the LISY300AL's 88 Hz
+    filters, so the user declares them in the vehicle file's [sensors] (an MCAP run's HELLO
+    declares them itself)."""
+    import dataclasses
+
+    return dataclasses.replace(rc_vehicle, sensors={**rc_vehicle.sensors, "accel_bandwidth_hz": 50.0,
+                                                    "gyro_bandwidth_hz": 88.0})

@@ -50,10 +50,10 @@ def test_effect_in_the_model_recovers_base_within_5_percent(simdir, rc_vehicle, 
     assert res.fit["ay"] + res.fit["r"] > plain.fit["ay"] + plain.fit["r"] + 1.0
 
 
-def test_steady_state_circles_with_body_slip_give_cf_and_cr(simdir, rc_vehicle):
+def test_steady_state_circles_with_body_slip_give_cf_and_cr(simdir, rc_vehicle_csv):
     path = sim_run(simdir, "steady_circle", seed=3, speed=2.0, speed_end=7.0, duration=40, steer_amp=0.06,
                    csv=True, beta_sensor=0.002)
-    res = fit(load_runs([path], rc_vehicle), rc_vehicle, "bicycle", "steady")
+    res = fit(load_runs([path], rc_vehicle_csv), rc_vehicle_csv, "bicycle", "steady")
     err = rel_err(res, {"Cf": TRUTH.Cf, "Cr": TRUTH.Cr})
     assert max(err.values()) < 0.03, (err, res.table())
     assert any("Iz is not identifiable" in w for w in res.warnings)
@@ -75,12 +75,12 @@ def test_double_lane_change_time_domain(simdir, rc_vehicle):
     assert max(err.values()) < 0.03, (err, res.table())
 
 
-def test_two_step_with_body_slip_and_random_steer(simdir, rc_vehicle):
+def test_two_step_with_body_slip_and_random_steer(simdir, rc_vehicle_csv):
     paths = [sim_run(simdir, "steady_circle", seed=3, speed=2.0, speed_end=7.0, duration=40, steer_amp=0.06,
                      csv=True, beta_sensor=0.002)]
     paths += [sim_run(simdir, "random_steer", seed=s, speed=v, csv=True, beta_sensor=0.002)
               for s, v in ((1, 4.0), (2, 6.0))]
-    res = fit(load_runs(paths, rc_vehicle), rc_vehicle, "bicycle", "auto")
+    res = fit(load_runs(paths, rc_vehicle_csv), rc_vehicle_csv, "bicycle", "auto")
     assert res.method.startswith("two-step")
     assert "Cf" in res.fixed and "Cr" in res.fixed
     assert max(rel_err(res, BASE).values()) < 0.03, res.table()
@@ -165,9 +165,11 @@ def test_study1_two_step_beats_dynamic_only_without_relaxation(passenger):
     assert e_two["Iz"] > 0.1
 
 
-def test_study2_greybox_on_a_double_lane_change_with_wheel_slip(tmp_path, rc_vehicle):
+def test_study2_greybox_on_a_double_lane_change_with_wheel_slip(tmp_path, rc_vehicle_csv):
     """The nonlinear vx/vy/r model with Cx, Cy and wheel slips (study 2), fitted in the
-    time domain to lane changes with their run-up (the drive slips the rear wheels)."""
+    time domain to lane changes with their run-up (the drive slips the rear wheels).
+    The study's single Cy holds here because the simulated car's axles are made equal;
+    the per-axle form and the project's own car are in test_greybox.py."""
     from hil_sim.manoeuvres import Plan
     from hil_sim.record import record
     from hil_sim.run import SimConfig
@@ -180,11 +182,11 @@ def test_study2_greybox_on_a_double_lane_change_with_wheel_slip(tmp_path, rc_veh
                         seed=seed, car=car, wheel_speeds=True)
         record(cfg, tmp_path / f"{seed}.mcap", csv_path=tmp_path / f"{seed}.csv")
         paths.append(tmp_path / f"{seed}.csv")
-    res = fit(load_runs(paths, rc_vehicle), rc_vehicle, "greybox", "time")
+    res = fit(load_runs(paths, rc_vehicle_csv), rc_vehicle_csv, "greybox-study", "time")
     err = rel_err(res, {"Cy": car.Cf / 2, "Iz": car.Iz, "Cx": car.Cx / 2})
-    assert err["Cy"] < 0.03 and err["Iz"] < 0.05, res.table()
-    assert err["Cx"] < 0.08, res.table()  # the truth's slip is quasi-static: s and s/(1+s) differ ~3%
+    assert err["Cy"] < 0.03 and err["Iz"] < 0.05 and err["Cx"] < 0.03, res.table()
     assert res.fit["vx"] > 97 and res.fit["ay"] > 97 and res.fit["r"] > 97
+    assert not any("one Cy" in w for w in res.warnings), res.warnings
 
 
 def test_greybox_needs_wheel_speeds(simdir, rc_vehicle):

@@ -1,11 +1,13 @@
 """One entry point for every method: ``fit(runs, vehicle, model, method)``.
 
-Methods: ``steady`` (steady-state lines), ``freq`` (frequency responses, WLS),
-``freq-study`` (study 1's coherence-weighted cost), ``time`` (output error),
+Methods: ``steady`` (steady-state lines), ``freq`` (frequency responses, WLS;
+needs constant-speed stretches), ``freq-study`` (study 1's coherence-weighted
+cost, same need), ``time`` (output error, simulated at the measured speed, so
+any speed profile),
 ``two-step`` (Cf, Cr from steady state, the rest from dynamics, as study 1
 recommends; with no body-slip measurement the understeer gradient from steady
 state constrains Cf and Cr instead), ``auto`` (two-step when the runs hold both
-steady-state cornering and a constant-speed stretch, else what the data allow).
+steady-state cornering and a stretch with steering, else what the data allow).
 """
 
 from __future__ import annotations
@@ -23,28 +25,32 @@ from stid.models.model import Model
 METHODS = ("auto", "steady", "freq", "freq-study", "time", "two-step")
 
 
-def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynamic: str = "time"):
+def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynamic: str = "time",
+        intervals: str = "model-error"):
+    """Fit ``model_name`` to the runs by ``method``. ``intervals``: ``"model-error"`` (the
+    default: also a block jackknife, so intervals cover model error that varies through the
+    data) or ``"noise"`` (the sandwich alone; faster, for inner loops)."""
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    if model_name.split("+")[0].strip() == "greybox":
+    if model_name.split("+")[0].strip() in ("greybox", "greybox-study"):
         if "+" in model_name:
             raise InputError("the grey-box model takes no effects; use bicycle+effect for those")
         if method not in ("auto", "time"):
             raise InputError("the grey-box model is fitted in the time domain only (--method time)")
         from stid.fit.greybox_fit import fit_greybox
 
-        return fit_greybox(runs, vehicle)
+        return fit_greybox(runs, vehicle, model_name.strip())
     model = Model(model_name, vehicle)
     if method == "auto":
         method = _choose(runs)
     if method == "steady":
         return fit_steady(model, dataset.steady_points(runs))
     if method in ("freq", "freq-study"):
-        return fit_freq(model, dataset.dynamic_stretches(runs), weighting="wls" if method == "freq" else "study",
-                        method_name=method)
+        return fit_freq(model, dataset.dynamic_stretches(runs, constant_speed=True, method=method),
+                        weighting="wls" if method == "freq" else "study", method_name=method)
     if method == "time":
-        return fit_time(model, dataset.dynamic_stretches(runs))
-    return two_step(model, runs, dynamic)
+        return fit_time(model, dataset.dynamic_stretches(runs), intervals=intervals)
+    return two_step(model, runs, dynamic, intervals)
 
 
 def _choose(runs) -> str:
@@ -61,14 +67,15 @@ def _choose(runs) -> str:
         return "time"
     if has_ss:
         return "steady"
-    raise InputError("the runs hold neither a constant-speed stretch (for the dynamics) nor steady-state "
-                     "cornering: drive random steer at constant speed, or circles with a slow speed sweep")
+    raise InputError("the runs hold neither a stretch of driving with steering (for the dynamics) nor "
+                     "steady-state cornering: drive random steer or a lane change, or circles with a slow "
+                     "speed sweep")
 
 
-def two_step(model: Model, runs, dynamic: str = "time"):
+def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-error"):
     """Study 1's recommendation: stiffness from steady state first, the rest from dynamics."""
     ss = fit_steady(model, dataset.steady_points(runs))
-    stretches = dataset.dynamic_stretches(runs)
+    stretches = dataset.dynamic_stretches(runs, constant_speed=dynamic != "time", method=dynamic)
     v = model.vehicle
     if "Cf" in ss.names:
         fixed = {"Cf": ss.value("Cf"), "Cr": ss.value("Cr")}
@@ -80,7 +87,8 @@ def two_step(model: Model, runs, dynamic: str = "time"):
             return {"Cf": v.b / max(eta * v.L / v.mass + v.a / p["Cr"], 1e-12)}
         space = ParamSpace(model, [n for n in model.param_names if n != "Cf"], {}, derived=derived)
     fitter = fit_time if dynamic == "time" else fit_freq
-    res = fitter(model, stretches, space=space, method_name=f"two-step (steady + {dynamic})")
+    kw = {"intervals": intervals} if dynamic == "time" else {}
+    res = fitter(model, stretches, space=space, method_name=f"two-step (steady + {dynamic})", **kw)
     if "Cf" in ss.names:
         for i, n in enumerate(ss.names):
             se = ss.stderr[i]
