@@ -22,8 +22,11 @@ OUT = Path("demo_out")
 HIDDEN = "actuator_lag,accel_offset"
 DRIVES = [  # name, stid-sim arguments
     ("standstill", ["--manoeuvre", "standstill", "--duration", "5", "--still", "0"]),
-    ("random_4ms", ["--manoeuvre", "random_steer", "--speed", "4", "--duration", "24", "--seed", "1"]),
-    ("random_6ms", ["--manoeuvre", "random_steer", "--speed", "6", "--duration", "24", "--seed", "2"]),
+    # as on a track: the driver accelerates and brakes every 2-5 s, +-25% around 4 and 6 m/s
+    ("track_4ms", ["--manoeuvre", "random_steer", "--speed", "4", "--speed-profile", "track", "--duration", "24",
+                   "--seed", "1"]),
+    ("track_6ms", ["--manoeuvre", "random_steer", "--speed", "6", "--speed-profile", "track", "--duration", "24",
+                   "--seed", "2"]),
 ]
 
 
@@ -78,9 +81,10 @@ def main() -> int:
     shutil.copy(Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml", vehicle)
     say("stid demo: a simulated 1:8 car runs the real firmware (MicroPython) and streams over emulated\n"
         "serial ports. Something about this car is not a textbook bicycle. Let us find out what.\n")
-    say("1. Drive: stand still (calibration), random steer at 4 m/s and at 6 m/s, logged in real time")
+    say("1. Drive: stand still (calibration), then random steer while speeding up and braking around\n"
+        "   4 m/s and 6 m/s (+-25%, as on a track), logged in real time")
     files = drive_and_log()
-    runs = [str(files["random_4ms"]), str(files["random_6ms"])]
+    runs = [str(files["track_4ms"]), str(files["track_6ms"])]
 
     say("\n2. Calibrate the sensors from the stand-still run")
     proc = subprocess.run([tool("stid"), "calibrate", str(files["standstill"]), "--vehicle", str(vehicle)],

@@ -9,17 +9,25 @@ import numpy as np
 
 from stid.errors import InputError
 from stid.load import load_file
+from stid.sensor_chain import describe
 from stid.vehicle_file import load_vehicle
 
 
 def write_csv(run, path) -> None:
+    """The run's measured samples; samples lost on the link are left out (their rows are
+    missing, so the time column shows the gap: an importer sees a gap, never a guess)."""
     cols = {"t": run.t, "steer": run.steer, "ay": run.ay, "r": run.r, "vx": run.vx}
     if run.ax is not None:
         cols["ax"] = run.ax
     if run.beta is not None:
         cols["beta"] = run.beta
+    for k in ("w_fl", "w_fr", "w_rl", "w_rr"):
+        if k in run.extra:
+            cols[k] = run.extra[k]
     header = ",".join(cols)
     data = np.column_stack(list(cols.values()))
+    if run.valid is not None:
+        data = data[np.asarray(run.valid, bool)]
     np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.7g")
 
 
@@ -38,6 +46,13 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None) ->
         written.append(p)
         for w in run.meta.get("warnings", []):
             print(f"warning: {run.name}: {w}", file=sys.stderr)
+    chain = runs[0].meta.get("sensor_chain")
+    if chain and (chain.get("ay") or chain.get("r")):
+        keys = {"ay": "accel_bandwidth_hz", "r": "gyro_bandwidth_hz"}
+        decl = ", ".join(f"{keys[o]} = {chain[o]:g}" for o in ("ay", "r") if chain.get(o))
+        print(f"note: the CSV holds the sensors' outputs ({describe(chain)}); a CSV carries no sensor "
+              f"chain, so declare it when fitting the CSV: [sensors] {decl} in the vehicle file",
+              file=sys.stderr)
     note = "" if len(written) == 1 else f" (the log had {len(written)} pieces, split at unplugs or restarts)"
     print(f"wrote {', '.join(map(str, written))}{note}", file=sys.stderr)
     return 0

@@ -20,6 +20,7 @@ from __future__ import annotations
 # what a v1 HELLO's part numbers imply: ADXL335 with the usual 0.1 uF; LISY300AL's own filter
 PART_BANDWIDTH_HZ = {"ADXL335": 50.0, "LISY300AL": 88.0}
 VEHICLE_KEYS = {"ay": "accel_bandwidth_hz", "r": "gyro_bandwidth_hz"}
+CSV_NONE = "CSV: none declared"
 HELLO_CHANNELS = {"ay": "ay", "r": "yaw"}
 
 
@@ -30,8 +31,8 @@ def _override(chain: dict, vehicle) -> dict:
         if key in sensors:
             chain[out] = max(float(sensors[key]), 0.0)
     if used:
-        chain["source"] = (chain["source"] + "; " if chain.get("source") else "") + \
-            f"vehicle file [sensors] {', '.join(used)}"
+        keep = chain.get("source") if len(used) < len(VEHICLE_KEYS) and chain.get("source") != CSV_NONE else ""
+        chain["source"] = (keep + "; " if keep else "") + f"vehicle file [sensors] {', '.join(used)}"
     return chain
 
 
@@ -57,7 +58,7 @@ def from_hello(hello: dict, vehicle) -> dict:
 
 
 def for_csv(vehicle) -> dict:
-    return _override({"ay": 0.0, "r": 0.0, "source": "CSV: none declared"}, vehicle)
+    return _override({"ay": 0.0, "r": 0.0, "source": CSV_NONE}, vehicle)
 
 
 def describe(chain: dict | None) -> str:
