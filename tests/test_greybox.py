@@ -161,3 +161,21 @@ def test_simulated_lane_change_study_form_warns(sim_lane_change, rc_vehicle_csv)
     path, _ = sim_lane_change
     res = fit(load_runs([path], rc_vehicle_csv), rc_vehicle_csv, "greybox-study")
     assert sum("one Cy cannot represent" in w for w in res.warnings) == 1, res.warnings
+
+
+def test_double_lane_change_from_the_command_line(sim_lane_change, tmp_path):
+    """As a user runs it: the logged MCAP (four hall channels through the firmware, HELLO
+    declaring them and the sensor chain), `stid fit --model greybox`."""
+    import json
+    import subprocess
+    import sys
+
+    path, car = sim_lane_change
+    out = subprocess.run([sys.executable, "-m", "stid.cli", "fit", str(path.with_suffix(".mcap")), "--vehicle",
+                          "docs/examples/rc8.toml", "--model", "greybox", "--json"],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    truth = {"Cx": car.Cx / 2, "Cyf": car.Cf, "Cyr": car.Cr, "Iz": car.Iz}
+    for k, v in truth.items():
+        assert abs(doc["params"][k]["value"] / v - 1) < 0.05, (k, doc["params"][k])
