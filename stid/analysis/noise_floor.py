@@ -1,5 +1,6 @@
-"""The noise floor: the best fit percent a linear time-invariant model driven by the
-measured steer can reach on this data, so the user knows when to stop adding effects.
+"""The noise floor: the best fit percent a linear model driven by the measured steer
+(at the measured speed) can reach on this data, so the user knows when to stop adding
+effects.
 
 It is estimated without any vehicle model: a long FIR predictor (1 s of steer
 history and a constant) is fitted by least squares to one half of each stretch and
@@ -8,7 +9,13 @@ counting noise as signal). What it cannot predict (noise, vibration, and
 nonlinearity) no linear model can. A nonlinear effect can beat this linear floor
 slightly. (Coherence would say the same in principle, but Welch coherence is
 biased low by response delays and leakage, and the floor came out below fits
-actually reached.)"""
+actually reached.)
+
+On a track run the speed swings, and one impulse response cannot follow the car
+through it: the predictor's taps then vary with the speed, h_j(v) = h0_j + h1_j d +
+h2_j d^2 with d = v/median(v) - 1 taken at the output's time (the frozen-speed
+response, which is what a slowly varying car has). Samples lost on the link are
+neither trained on nor scored."""
 
 from __future__ import annotations
 
@@ -26,16 +33,25 @@ def _design(u: np.ndarray, taps: int) -> np.ndarray:
     return np.column_stack([X, np.ones(len(u))])
 
 
-def _fir_cv(u: np.ndarray, y: np.ndarray, taps: int, ridge: float = 1e-6) -> np.ndarray:
+SPEED_VARIES = 0.03  # relative speed spread (10-90%) above which the taps follow the speed
+
+
+def _fir_cv(u: np.ndarray, y: np.ndarray, taps: int, ridge: float = 1e-6, vx=None, valid=None) -> np.ndarray:
     """Two-fold cross-validated FIR prediction of y from u (prediction for every sample)."""
     X = _design(u - u.mean(), taps)
+    if vx is not None:
+        d = np.asarray(vx, float) / np.median(vx) - 1.0
+        if np.percentile(d, 90) - np.percentile(d, 10) > SPEED_VARIES:
+            fir = X[:, :-1]
+            X = np.column_stack([fir, fir * d[:, None], fir * (d * d)[:, None], X[:, -1:]])
     n = len(u)
+    ok = np.ones(n, bool) if valid is None else np.asarray(valid, bool)
     half = n // 2
     pred = np.empty(n)
     for tr, te in ((slice(taps, half), slice(half, n)), (slice(half + taps, n), slice(0, half))):
-        A = X[tr]
+        A, b = X[tr][ok[tr]], y[tr][ok[tr]]
         reg = ridge * np.trace(A.T @ A) / A.shape[1] * np.eye(A.shape[1])
-        w = np.linalg.solve(A.T @ A + reg, A.T @ y[tr])
+        w = np.linalg.solve(A.T @ A + reg, A.T @ b)
         pred[te] = X[te] @ w
     return pred
 
@@ -50,8 +66,11 @@ def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5
         if len(st.steer) < 6 * taps:
             continue
         keep = (st.t - st.t[0]) >= max(keep_from_s, memory_s)
+        valid = getattr(st, "valid", None)
+        if valid is not None:
+            keep = keep & valid
         for name, y in (("ay", st.ay), ("r", st.r)):
-            pred = _fir_cv(st.steer, y, taps)
+            pred = _fir_cv(st.steer, y, taps, vx=getattr(st, "vx_series", None), valid=valid)
             err[name].append((y - pred)[keep])
             ref[name].append(y[keep])
     return err, ref
