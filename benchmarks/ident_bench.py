@@ -19,12 +19,17 @@ REPO = Path(__file__).resolve().parents[1]
 VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
 
 
-def make_runs(d: Path, effects=(), seeds=(1, 2), duration=40.0, steer_amp=0.04) -> list[Path]:
+def make_runs(d: Path, effects=(), seeds=(1, 2), duration=40.0, steer_amp=0.04,
+              speed_profile: str = "constant") -> list[Path]:
+    """Two runs of random steer (4 and 6 m/s), one per seed; ``speed_profile="track"``: the
+    speed target moves by +-25% every 2-5 s (hil_sim.manoeuvres.Plan)."""
     paths = []
     for seed, speed in zip(seeds, (4.0, 6.0)):
-        p = d / f"rs_{'+'.join(effects) or 'clean'}_{seed}_{steer_amp:g}.mcap"
+        tag = "" if speed_profile == "constant" else f"_{speed_profile}"
+        p = d / f"rs_{'+'.join(effects) or 'clean'}{tag}_{seed}_{steer_amp:g}.mcap"
         if not p.exists():
-            record(SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp),
+            record(SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp,
+                                       speed_profile=speed_profile),
                              seed=seed, effects=tuple(effects)), p)
         paths.append(p)
     return paths

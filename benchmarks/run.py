@@ -47,22 +47,7 @@ def _rows(quick: bool, data_dir):
     yield ("diagnose", "whole `stid diagnose` process (Python start-up and imports included)",
            f"{dg['cli_diagnose_s']:.2f} s", "≤ 2 s", dg["cli_diagnose_s"] <= 2.0)
 
-    n = 3 if quick else 50
-    clean, _ = accuracy_bench.monte_carlo(data_dir, n, estimators=("stid", "study"))
-    for k in ("Cf", "Cr", "Iz"):
-        st, sy, bound = clean["stid"][k], clean["study"][k], clean["crlb_sd"][k]
-        yield ("accuracy", f"clean data, {n} seeds: {k} (bias %, sd, sd / Cramér-Rao bound)",
-               f"stid {st['bias_pct']:+.2f}% sd {st['sd']:.4g} ({st['sd'] / bound:.2f}x); study {sy['bias_pct']:+.2f}% "
-               f"sd {sy['sd']:.4g} ({sy['sd'] / bound:.2f}x)", "stid sd ≤ 1.2x bound", st["sd"] <= 1.2 * bound)
-    lag, _ = accuracy_bench.monte_carlo(data_dir, n, effects=("actuator_lag",), model_name="bicycle+actuator_lag",
-                                         estimators=("stid", "study"), first_seed=3000)
-    for k in ("Cf", "Cr", "Iz"):
-        st, sy = lag["stid"][k], lag["study"][k]
-        bias = st["mean"] - accuracy_bench.TRUTH[k]
-        yield ("accuracy", f"servo lag hidden, {n} seeds: {k}; stid after diagnosis (bicycle+actuator_lag)",
-               f"stid {st['bias_pct']:+.2f}% ({abs(bias) / st['sd']:.1f} sd); study (bicycle) {sy['bias_pct']:+.1f}%",
-               "study biased; stid within 2 sd", abs(bias) <= 2 * st["sd"] and abs(sy["bias_pct"]) > 5)
-    _plot(clean, lag)
+    yield from _accuracy_rows(quick, data_dir)
     sc = ident_bench.scaling(data_dir, quick)
     base = sc["length"][0]
     for row in sc["length"]:
@@ -77,7 +62,71 @@ def _rows(quick: bool, data_dir):
                f"(x{ratio:.1f})", "≤ 1.5x linear in candidates", ratio <= 1.5 * row["candidates"] / c0["candidates"])
 
 
-def _plot(clean, lag):
+def _accuracy_rows(quick: bool, data_dir):
+    """Monte Carlo over seeds (benchmarks/accuracy_bench.py): the shipped `stid fit` against
+    study (1)'s method, with and without stid's sensor model; interval coverage; `stid plan`'s
+    prediction against the observed spread. "Unbiased" everywhere: |bias| <= 2 standard errors
+    of the mean over the seeds (sd / sqrt(n))."""
+    from benchmarks import accuracy_bench as ab
+
+    def verdict(s):
+        return "unbiased" if s["unbiased"] else "biased"
+
+    def b(s):  # bias in %, in sd and in standard errors of the mean
+        return f"{s['bias_pct']:+.2f}% ({s['bias_over_sd']:+.1f} sd, {s['bias_over_sem']:+.0f} SE, {verdict(s)})"
+
+    n = 3 if quick else 40
+    n_track = 3 if quick else 30
+    n_lag = 3 if quick else 30
+    est = ("stid", "study", "study+sensors")
+    clean, _ = ab.monte_carlo(data_dir, n, estimators=est)
+    for k in ab.TRUTH:
+        st, sy, ss = clean["stid"][k], clean["study"][k], clean["study+sensors"][k]
+        yield ("accuracy", f"clean, constant speed, {n} seeds: {k} bias (stid fit; study; study + sensor model)",
+               f"stid {b(st)}; study {sy['bias_pct']:+.1f}% ({verdict(sy)}); study+sensors "
+               f"{ss['bias_pct']:+.2f}% ({ss['bias_over_sd']:+.1f} sd, {verdict(ss)})",
+               "stid unbiased (|bias| ≤ 2 SE of the mean)", st["unbiased"])
+    for k in ab.TRUTH:
+        st = clean["stid"][k]
+        yield ("accuracy", f"clean, constant speed, {n} seeds: {k} printed 95% interval contains the truth",
+               f"{100 * st['coverage']:.0f}%; printed se / observed sd {st['se_over_sd']:.2f}; jackknife "
+               f"widened {100 * st['jackknife_share']:.0f}%", "≥ 85%", st["coverage"] >= 0.85)
+    for k in ab.TRUTH:
+        st, sy, ss, bound = clean["stid"][k], clean["study"][k], clean["study+sensors"][k], clean["crlb_sd"][k]
+        yield ("accuracy", f"clean, constant speed, {n} seeds: {k} sd / Cramér-Rao bound (sensor noise)",
+               f"stid {st['sd'] / bound:.2f}x (sd {st['sd']:.3g}); study {sy['sd'] / bound:.1f}x; study+sensors "
+               f"{ss['sd'] / bound:.1f}x", "stid ≤ 1.2x", st["sd"] <= 1.2 * bound)
+    for k in ab.TRUTH:
+        st, pl, ps = clean["stid"][k], clean["plan_sd"][k], clean["plan_still_sd"][k]
+        r = pl / st["sd"]
+        yield ("plan", f"`stid plan` sd from a run's residuals / Monte-Carlo sd, same manoeuvre: {k}",
+               f"{r:.2f} (predicted {pl:.3g}, observed {st['sd']:.3g}); from the stand-still alone {ps / st['sd']:.2f}",
+               "0.7-1.4", 0.7 <= r <= 1.4)
+    track, _ = ab.monte_carlo(data_dir, n_track, estimators=("stid",), first_seed=5000, speed_profile="track")
+    for k in ab.TRUTH:
+        st = track["stid"][k]
+        yield ("accuracy", f"clean, track speed profile (±25%), {n_track} seeds: {k} bias; interval coverage",
+               f"{b(st)}; covered {100 * st['coverage']:.0f}%, se / sd {st['se_over_sd']:.2f}",
+               "unbiased; coverage ≥ 85%", st["unbiased"] and st["coverage"] >= 0.85)
+    for k in ab.TRUTH:
+        st, pl, ps = track["stid"][k], track["plan_sd"][k], track["plan_still_sd"][k]
+        r = pl / st["sd"]
+        yield ("plan", f"same, on the track runs (residuals of each run pair; constant-speed plan): {k}",
+               f"{r:.2f} (predicted {pl:.3g}, observed {st['sd']:.3g}); from the stand-still alone {ps / st['sd']:.2f}",
+               "0.7-1.4", 0.7 <= r <= 1.4)
+    lag, _ = ab.monte_carlo(data_dir, n_lag, effects=("actuator_lag",), model_name="bicycle+actuator_lag",
+                            estimators=est, first_seed=3000)
+    for k in ab.TRUTH:
+        st, sy, ss = lag["stid"][k], lag["study"][k], lag["study+sensors"][k]
+        yield ("accuracy", f"servo lag hidden, {n_lag} seeds: {k}; stid after diagnosis (bicycle+actuator_lag); "
+               "study (bicycle)",
+               f"stid {b(st)}, covered {100 * st['coverage']:.0f}%; study {sy['bias_pct']:+.0f}%, "
+               f"study+sensors {ss['bias_pct']:+.0f}%", "study biased; stid unbiased",
+               st["unbiased"] and not sy["unbiased"])
+    _plot(clean, track, lag)
+
+
+def _plot(clean, track, lag):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -85,22 +134,20 @@ def _plot(clean, lag):
 
     from benchmarks.accuracy_bench import TRUTH
 
-    fig, axes = plt.subplots(1, 3, figsize=(11, 3.4))
+    cols = [("clean\nstid", clean, "stid", "C0"), ("clean\nstudy", clean, "study", "C3"),
+            ("clean\nstudy+s", clean, "study+sensors", "C1"), ("track\nstid", track, "stid", "C0"),
+            ("lag\nstid", lag, "stid", "C0"), ("lag\nstudy", lag, "study", "C3")]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
     for ax, k in zip(axes, ("Cf", "Cr", "Iz")):
-        for i, (label, summ) in enumerate((("clean", clean), ("servo lag hidden", lag))):
-            for j, est in enumerate(("stid", "study")):
-                v = summ[est][k]
-                ax.errorbar(2 * i + j, 100 * (v["mean"] / TRUTH[k] - 1), yerr=100 * 2 * v["sd"] / TRUTH[k],
-                            fmt="o", color="C0" if est == "stid" else "C3", label=est if (i == 0 and k == "Cf") else None)
-            b = 100 * 2 * summ["crlb_sd"][k] / TRUTH[k]
-            ax.add_patch(plt.Rectangle((2 * i - 0.3, -b), 0.6, 2 * b, color="C0", alpha=0.15))
+        for i, (_, summ, est, c) in enumerate(cols):
+            v = summ[est][k]
+            ax.errorbar(i, 100 * (v["mean"] / TRUTH[k] - 1), yerr=100 * 2 * v["sd"] / TRUTH[k], fmt="o", color=c)
         ax.axhline(0, color="k", lw=0.8)
-        ax.set_xticks([0, 1, 2, 3], ["clean\nstid", "clean\nstudy", "lag\nstid", "lag\nstudy"])
+        ax.set_xticks(range(len(cols)), [c[0] for c in cols], fontsize=8)
         ax.set_title(f"{k} error [%]")
+        ax.set_yscale("symlog", linthresh=0.5)
         ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.suptitle("Estimation error over the Monte Carlo seeds: mean ± 2 sd; shaded: ± 2 Cramér-Rao bound "
-                 "(sensor noise)", fontsize=10)
+    fig.suptitle("Estimation error over the Monte Carlo seeds: mean ± 2 sd (symlog axis)", fontsize=10)
     fig.tight_layout()
     RESULTS.mkdir(exist_ok=True)
     fig.savefig(RESULTS / "accuracy.png", dpi=110)
@@ -116,7 +163,12 @@ def main(argv=None) -> int:
     import tempfile
     from pathlib import Path as _P
 
-    data_dir = _P(tempfile.mkdtemp(prefix="stid-bench-"))
+    # STID_BENCH_DATA=DIR keeps the simulated runs between invocations (they are named by seed)
+    import os
+
+    data_dir = _P(os.environ["STID_BENCH_DATA"]) if os.environ.get("STID_BENCH_DATA") else \
+        _P(tempfile.mkdtemp(prefix="stid-bench-"))
+    data_dir.mkdir(parents=True, exist_ok=True)
     for row in _rows(args.quick, data_dir):
         rows.append(row)
         print(f"{row[0]:9} {row[1]:58} {row[2]:>40}  goal {row[3]}  {'ok' if row[4] else 'MISSED'}", flush=True)
