@@ -111,7 +111,6 @@ def _cmd_report(args) -> int:
 def _cmd_plan(args) -> int:
     import json
 
-    from stid.crlb import noise_psd_from_still
     from stid.errors import InputError
     from stid.load import load_runs
     from stid.models.model import Model
@@ -132,10 +131,14 @@ def _cmd_plan(args) -> int:
         raise InputError("give at least one --manoeuvre, e.g. --manoeuvre speed=4,amp=2deg,bw=4,dur=60")
     manoeuvres = [parse_manoeuvre(m) for m in args.manoeuvre]
     if args.noise_from:
-        noise = noise_psd_from_still(load_runs([args.noise_from], vehicle))
-        if noise is None:
-            raise InputError(f"{args.noise_from} never stands still: give a run that starts at rest")
-        source = f"the stand-still of {args.noise_from}"
+        # a run that drove: its fit residuals (model error + sensor noise), not only the
+        # stand-still's sensor noise, which assumes the model exact and predicts too little
+        from stid.plan import noise_from_runs
+
+        noise, source, fitted = noise_from_runs(load_runs([args.noise_from], vehicle), vehicle, args.model,
+                                                args.noise_from)
+        if fitted and not args.params_from:
+            params.update(fitted)
     else:
         noise = datasheet_noise(vehicle=vehicle)
         source = "datasheets (ADXL335, LISY300AL, 12-bit ADC)"

@@ -22,8 +22,10 @@ TRUE = {"Cf": 400.0, "Cr": 475.0, "Iz": 0.25}
 VEHICLE = Vehicle(name="test car", mass=M, a=A, b=B)
 
 
-def bicycle_run(vx_of_t, T=40.0, fs=200.0, seed=0, steer_rms_deg=3.0, bw=3.0, still=0.0):
-    """A linear single track at the speed profile vx(t), integrated to 1e-10: t, steer, ay, r, vx."""
+def bicycle_run(vx_of_t, T=40.0, fs=200.0, seed=0, steer_rms_deg=3.0, bw=3.0, still=0.0, geometry=False):
+    """A linear single track at the speed profile vx(t), integrated to 1e-10: t, steer, ay, r, vx.
+    ``geometry``: the front force acts along the steered wheel (its lateral part is F cos(delta)),
+    as on a real car: a nonlinearity that grows with the square of the steer."""
     t = np.arange(int(T * fs)) / fs
     rng = np.random.default_rng(seed)
     sos = signal.butter(4, bw, fs=fs, output="sos")
@@ -38,6 +40,8 @@ def bicycle_run(vx_of_t, T=40.0, fs=200.0, seed=0, steer_rms_deg=3.0, bw=3.0, st
     def f(tt, x):
         d, v = np.interp(tt, t, steer), np.interp(tt, t, vx)
         Ff, Fr = forces(x[0], x[1], d, v)
+        if geometry:
+            Ff = Ff * np.cos(d)
         return [(Ff + Fr) / M - v * x[1], (A * Ff - B * Fr) / Iz]
 
     # start in the steady state of the first steer
@@ -48,6 +52,8 @@ def bicycle_run(vx_of_t, T=40.0, fs=200.0, seed=0, steer_rms_deg=3.0, bw=3.0, st
     sol = solve_ivp(f, (0, t[-1]), x0, t_eval=t, rtol=1e-10, atol=1e-12, max_step=1 / fs, method="DOP853")
     vy, r = sol.y
     Ff, Fr = forces(vy, r, steer, vx)
+    if geometry:
+        Ff = Ff * np.cos(steer)
     return {"t": t, "steer": steer, "ay": (Ff + Fr) / M, "r": r, "vx": vx}
 
 
@@ -270,3 +276,33 @@ def test_a_track_run_with_a_swinging_speed_is_fitted(tmp_path):
     for k, v in TRUTH_SIM.items():
         assert abs(res["params"][k]["value"] / v - 1) < 0.03, (k, res["params"][k])
     assert res["fit"]["ay"] > 97 and res["fit"]["r"] > 97
+
+
+def test_an_estimate_that_moves_with_the_amplitude_widens_its_interval():
+    """A car with the front force along the steered wheel (cos delta), fitted by the linear
+    single track: the estimates depend on the steering amplitude, and the printed intervals
+    say so and widen (with the noise-only intervals they would exclude the truth); the
+    same car without that geometry is not widened."""
+    from stid.fit.fitting import fit
+    from stid.run import Run
+
+    def runs(geometry):
+        out = []
+        for seed in (41, 42):
+            d = bicycle_run(swinging, T=25.0, seed=seed, steer_rms_deg=6.0, geometry=geometry)
+            rng = np.random.default_rng(seed + 100)
+            n = len(d["t"])
+            out.append(Run(f"g{seed}", d["t"], d["steer"], d["ay"] + 0.05 * rng.standard_normal(n),
+                           d["r"] + 0.005 * rng.standard_normal(n), d["vx"]))
+        return out
+
+    geo = fit(runs(True), VEHICLE, "bicycle", "time")
+    noise_only = fit(runs(True), VEHICLE, "bicycle", "time", intervals="noise")
+    assert "steering amplitude" in geo.interval
+    i = geo.names.index("Cf")
+    lo, hi = noise_only.ci95[i]
+    assert not lo < TRUE["Cf"] < hi  # the model error is real, and noise-only intervals miss it
+    lo2, hi2 = geo.ci95[i]
+    assert hi2 - lo2 > 2 * (hi - lo)
+    plain = fit(runs(False), VEHICLE, "bicycle", "time")
+    assert "steering amplitude" not in plain.interval

@@ -78,3 +78,58 @@ def combine(cov_noise: np.ndarray, cov_jack: np.ndarray | None):
     vj = np.diag(cov_jack)
     scale = np.sqrt(np.maximum(vj / vn, 1.0))
     return cov_noise * np.outer(scale, scale), [i for i, s in enumerate(scale) if s > 1.0]
+
+
+# -- an error common to all the data, that grows with the steering amplitude -----------
+#
+# The jackknife's blocks are alike (each holds a few seconds of the same driving), so an
+# error common to all of them is invisible to it. The commonest such error in a linear
+# single track is a nonlinearity: large-angle geometry (the front force acts along the
+# wheel, cos(delta)), tyre curvature, the speed the steering drags off. Left and right
+# are symmetric, so it grows with the square of the amplitude, and the cornering
+# stiffness a user wants is the slope at zero slip: the linear limit. So the data are
+# split at the median of the steer's local amplitude, the estimate refitted on each
+# half (one Gauss-Newton step, as the jackknife), and when the halves disagree by more
+# than their noise (|z| > Z_SIGNIFICANT), the interval is widened by the extrapolated
+# distance from the estimate to its zero-amplitude limit, assuming an amplitude^2 law.
+# (The halves share the vehicle's memory across their boundaries, so this sees only
+# part of the dependence: it is a lower bound on that error, not its measure.)
+
+AMPLITUDE_WINDOW_S = 1.0
+Z_SIGNIFICANT = 2.0
+
+
+def amplitude_envelope(steer: np.ndarray, dt: float, window_s: float = AMPLITUDE_WINDOW_S) -> np.ndarray:
+    """Local rms of the steer about its local mean [rad], over a centred window."""
+    from stid.segments import uniform_filter1d
+
+    w = max(3, int(window_s / dt))
+    m = uniform_filter1d(steer, w)
+    return np.sqrt(np.maximum(uniform_filter1d((steer - m) ** 2, w), 0.0))
+
+
+def _step(J, r, rows):
+    step, *_ = np.linalg.lstsq(J[rows], -r[rows], rcond=None)
+    return step
+
+
+def amplitude_allowance(J: np.ndarray, r: np.ndarray, amp_rows: np.ndarray, sandwich):
+    """How far the estimate sits from its zero-amplitude limit, in the fit's coordinates,
+    where the data show it; zeros where the halves agree within noise.
+
+    ``amp_rows`` is the steer amplitude at each residual row; ``sandwich(mask)`` returns
+    the noise covariance of a refit on the rows in ``mask``. Returns (allowance, z)."""
+    lo = amp_rows <= np.median(amp_rows)
+    hi = ~lo
+    p = J.shape[1]
+    if lo.sum() < 4 * p or hi.sum() < 4 * p:
+        return np.zeros(p), np.zeros(p)
+    x_lo, x_hi = _step(J, r, lo), _step(J, r, hi)
+    var = np.diag(sandwich(lo)) + np.diag(sandwich(hi))
+    z = (x_hi - x_lo) / np.sqrt(np.maximum(var, 1e-300))
+    a2 = amp_rows ** 2
+    e_all, e_lo, e_hi = a2.mean(), a2[lo].mean(), a2[hi].mean()
+    if e_hi - e_lo <= 1e-12 * max(e_all, 1e-300):
+        return np.zeros(p), z
+    bias = (x_hi - x_lo) * e_all / (e_hi - e_lo)  # the estimate minus its zero-amplitude limit
+    return np.where(np.abs(z) > Z_SIGNIFICANT, np.abs(bias), 0.0), z

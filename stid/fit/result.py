@@ -51,6 +51,7 @@ class FitResult:
     notes: list = field(default_factory=list)  # what the data selection left out, what was assumed
     interval: str = ""  # which kind of 95% interval ci95 is (noise only, or with model error)
     ci_dof: int | None = None  # degrees of freedom of the interval's t quantile (default n - k)
+    ci_allowance: np.ndarray | None = None  # model-error allowance added to each half-width
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
 
@@ -63,7 +64,10 @@ class FitResult:
     def ci95(self) -> np.ndarray:
         dof = self.ci_dof if self.ci_dof else max(self.n - len(self.values), 1)
         q = stdtrit(dof, 0.975)
-        return np.column_stack([self.values - q * self.stderr, self.values + q * self.stderr])
+        half = q * self.stderr
+        if self.ci_allowance is not None:
+            half = half + self.ci_allowance
+        return np.column_stack([self.values - half, self.values + half])
 
     @property
     def corr(self) -> np.ndarray:

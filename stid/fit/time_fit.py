@@ -107,7 +107,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         pos += m
     cov = to_physical(covariance_sandwich(J_blocks, r_blocks), space, res.x)
     interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
-    widened, jk_dof = [], None
+    widened, jk_dof, allowance = [], None, None
     if intervals == "model-error":
         bm = jk.blocks(keeps, [st.dt for st in stretches])
         row_block = np.full(len(res.fun), -1)
@@ -128,6 +128,25 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                              f"jackknife, {len(bm)} blocks)"
                              + (f"; model error widened {', '.join(space.free[i] for i in widened)} "
                                 f"(t with {jk_dof} dof)" if widened else ""))
+        amp_rows = np.concatenate([np.repeat(jk.amplitude_envelope(st.steer, st.dt)[k], 2)
+                                   for st, k in zip(stretches, keeps)])
+
+        def subset_cov(rows):
+            Jm, rm = res.jac * rows[:, None], res.fun * rows
+            Jb, rb, q = [], [], 0
+            for k in keeps:
+                m = int(k.sum()) * 2
+                Jb.append(Jm[q:q + m].reshape(-1, 2, n_free))
+                rb.append(rm[q:q + m].reshape(-1, 2))
+                q += m
+            return covariance_sandwich(Jb, rb)
+
+        allow_x, _ = jk.amplitude_allowance(res.jac, res.fun, amp_rows, subset_cov)
+        allowance = allow_x * space.dp_dx(res.x)  # to physical units (first order)
+        grown = [n for n, a in zip(space.free, allowance) if a > 0]
+        if grown:
+            interval_note += ("; the estimates move with the steering amplitude (a nonlinearity the model lacks): "
+                              f"{', '.join(grown)} widened by the distance to their zero-amplitude limit")
 
     preds = [Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k)
              for st, k in zip(stretches, keeps)]
@@ -136,6 +155,8 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     result.interval = interval_note
     if widened:
         result.ci_dof = jk_dof
+    if allowance is not None and np.any(allowance > 0):
+        result.ci_allowance = allowance
     for w in warnings:
         result.warn(w)
     for note in getattr(stretches, "notes", []):
