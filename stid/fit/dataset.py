@@ -17,6 +17,7 @@ from scipy import signal
 from stid import segments
 from stid.errors import InputError
 from stid.run import Run
+from stid.sensor_chain import describe
 
 TARGET_FS = 200.0
 MIN_STRETCH_S = 3.0
@@ -160,8 +161,6 @@ def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: 
     if len(moving) < len(out):
         notes.append(f"{len(out) - len(moving)} stretch(es) with (nearly) constant steer left out of the "
                      "dynamic fit (no dynamic information)")
-    from stid.sensor_chain import describe
-
     chains = {describe(s.sensors) for s in moving}
     notes.extend(sorted(chains))
     lost = sum(int((~s.valid).sum()) for s in moving if s.valid is not None)
