@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -49,11 +50,13 @@ def standstill(path, vehicle: Vehicle) -> dict:
     if moving.any():
         raise InputError(f"{path}: the wheels turned during the recording; calibrate standing still")
     r_v = units.counts_to_volts(s["yaw"], hello)
-    noise = {k: float(np.nanstd(v)) for k, v in acc.items()}
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a channel the board does not sample is all NaN
+        noise = {k: float(np.nanstd(v)) if np.isfinite(v).any() else float("nan") for k, v in acc.items()}
     if max(v for v in noise.values() if np.isfinite(v)) > 0.5:
         raise InputError(f"{path}: the accelerometer is not still (std up to "
                          f"{max(noise.values()):.2f} m/s^2); calibrate with the engine off, car at rest")
-    mean = {k: float(np.nanmean(v)) if np.isfinite(np.nanmean(v)) else None for k, v in acc.items()}
+    mean = {k: float(np.nanmean(v)) if np.isfinite(v).any() else None for k, v in acc.items()}
     out = {"gyro_zero_v": float(np.mean(r_v))}
     notes = []
     if mean["az"] is not None:

@@ -127,6 +127,9 @@ def _cmd_plan(args) -> int:
         from stid.fit.fitting import fit
 
         params.update(fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time").all_params())
+        params_source = f"a fit to {', '.join(args.params_from)}"
+    else:
+        params_source = "the model's defaults and the vehicle file's [params]"
     if not args.manoeuvre:
         raise InputError("give at least one --manoeuvre, e.g. --manoeuvre speed=4,amp=2deg,bw=4,dur=60")
     manoeuvres = [parse_manoeuvre(m) for m in args.manoeuvre]
@@ -139,6 +142,7 @@ def _cmd_plan(args) -> int:
                                                 args.noise_from)
         if fitted and not args.params_from:
             params.update(fitted)
+            params_source = f"the fit to {args.noise_from}"
     else:
         noise = datasheet_noise(vehicle=vehicle)
         source = "datasheets (ADXL335, LISY300AL, 12-bit ADC)"
@@ -149,7 +153,7 @@ def _cmd_plan(args) -> int:
             targets[name.strip()] = float(val.strip().rstrip("%")) / 100
         except ValueError:
             raise InputError(f"--target {t!r}: write NAME=PERCENT, e.g. Iz=5%") from None
-    text, doc = plan_report(model, params, manoeuvres, noise, targets, source)
+    text, doc = plan_report(model, params, manoeuvres, noise, targets, source, params_source)
     print(json.dumps(doc, indent=1) if args.json else text)
     return 0
 
@@ -229,7 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default="bicycle")
     p.add_argument("--manoeuvre", action="append", metavar="SPEC",
                    help="random steer: speed=M/S,amp=DEG deg,bw=HZ,dur=S (repeat for several)")
-    p.add_argument("--noise-from", metavar="RUN", help="noise level from the stand-still part of this run")
+    p.add_argument("--noise-from", metavar="RUN",
+                   help="noise level from this run: the residuals of a fit to it (model error + sensor noise), "
+                        "or its stand-still when it never drives")
     p.add_argument("--params-from", nargs="+", metavar="RUN", help="parameter values from fitting these runs")
     p.add_argument("--target", action="append", metavar="NAME=PCT", help="e.g. Iz=5%%: what to add to reach it")
     p.add_argument("--json", action="store_true")

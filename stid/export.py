@@ -53,6 +53,8 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None) ->
         print(f"note: the CSV holds the sensors' outputs ({describe(chain)}); a CSV carries no sensor "
               f"chain, so declare it when fitting the CSV: [sensors] {decl} in the vehicle file",
               file=sys.stderr)
-    note = "" if len(written) == 1 else f" (the log had {len(written)} pieces, split at unplugs or restarts)"
+    note = "" if len(written) == 1 else (f" (the log had {len(written)} pieces, split where the stream "
+                                         "stopped for more than 0.1 s: an unplug, a restart or a burst of "
+                                         "lost frames; each piece's t starts at 0)")
     print(f"wrote {', '.join(map(str, written))}{note}", file=sys.stderr)
     return 0

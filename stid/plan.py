@@ -225,9 +225,11 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
     return out
 
 
-def plan_report(model, params, manoeuvres, noise, targets, noise_source: str) -> tuple[str, dict]:
+def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
+                params_source: str = "the model's defaults and the vehicle file's [params]") -> tuple[str, dict]:
     pred = predict(model, params, manoeuvres, noise)
-    lines = [f"plan for {model.name} (cornering stiffness per axle, N/rad; noise from {noise_source})"]
+    lines = [f"plan for {model.name} (cornering stiffness per axle, N/rad; noise from {noise_source})",
+             f"  parameter values assumed (not estimates): {params_source}"]
     for m in manoeuvres:
         lines.append(f"  drive: {m.label()}")
     lines.append(f"  {'parameter':<14}{'value':>12}{'predicted sd':>15}{'':>9}  unit")
@@ -243,8 +245,8 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str) ->
     if not model_error:
         lines.append("  note: sensor noise only: this assumes the model is exactly the car, and predicts the least "
                      "spread a fit can have. Model error adds spread and bias that this plan does not see (README, "
-                     "'Performance and accuracy'); a plan from the residuals of a fit to a run that drove "
-                     "(stid.plan.noise_from_runs) includes the model error's spread")
+                     "'Performance and accuracy'); --noise-from RUN with a run that drove plans from the "
+                     "residuals of a fit to it, which include the model error's spread")
     doc = {"model": model.name, "noise": noise_source, "includes_model_error": model_error,
            "estimator": pred["estimator"],
            "manoeuvres": [vars(m) for m in manoeuvres],

@@ -61,6 +61,23 @@ def for_csv(vehicle) -> dict:
     return _override({"ay": 0.0, "r": 0.0, "source": CSV_NONE}, vehicle)
 
 
+def undeclared_warnings(runs, vehicle) -> list:
+    """A CSV that declares no chain is fitted unfiltered. That is right for another logger's
+    unfiltered data, and wrong by percents for sensor outputs (ADXL335, LISY300AL, a CSV
+    from ``stid export`` or ``stid-sim --csv``): say so once, with the line that settles it."""
+    sensors = getattr(vehicle, "sensors", None) or {}
+    if all(k in sensors for k in VEHICLE_KEYS.values()):
+        return []
+    csv = [r.name for r in runs if (r.meta.get("sensor_chain") or {}).get("source") == CSV_NONE]
+    if not csv:
+        return []
+    return [f"{', '.join(csv[:3])}{' ...' if len(csv) > 3 else ''}: a CSV carries no sensor chain and the "
+            "vehicle file declares none, so the model's outputs are not filtered. If the data are sensor "
+            "outputs (ADXL335 / LISY300AL, or from stid export / stid-sim --csv), declare their bandwidths "
+            "in the vehicle file ([sensors] accel_bandwidth_hz = 50, gyro_bandwidth_hz = 88 for the "
+            "reference car); if they are truly unfiltered, declare 0 for both to say so"]
+
+
 def describe(chain: dict | None) -> str:
     """One line: the filters the model applies to its outputs, and where they come from."""
     if not chain:

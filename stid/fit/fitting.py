@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stid import sensor_chain
 from stid.errors import InputError
 from stid.fit import dataset
 from stid.fit.freq_fit import fit_freq
@@ -41,6 +42,13 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
 
         return fit_greybox(runs, vehicle, model_name.strip())
     model = Model(model_name, vehicle)
+    result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
+    for w in sensor_chain.undeclared_warnings(runs, vehicle):
+        result.warn(w)
+    return result
+
+
+def _fit_bicycle(model, runs, vehicle, method, dynamic, intervals):
     if method == "auto":
         method = _choose(runs)
     if method == "steady":

@@ -158,6 +158,12 @@ def fit_greybox(runs, vehicle, form: str = "greybox", discard_s: float = 0.3) ->
     prob = _Problem(model, pieces, vehicle, discard_s)
     space, res, p_hat, cov = prob.fit(model.defaults())
     result = _result(prob, space, res, p_hat, cov)
+    result.interval = "95% intervals: noise only (robust covariance of the output-error fit)"
+    for chain in sorted({sensor_chain.describe(pc.get("sensors") or sensor_chain.for_csv(vehicle))
+                         for pc in pieces}):
+        result.note(chain)
+    for w in sensor_chain.undeclared_warnings(runs, vehicle):
+        result.warn(w)
     biased = form == "greybox-study" and _check_one_cy(result, pieces, vehicle, discard_s, p_hat)
     # (a biased fit's intervals say nothing about what to drive: the model is the problem)
     _warn_poorly_determined(result, pieces, vehicle, lateral=not biased)

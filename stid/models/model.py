@@ -22,6 +22,9 @@ def parse_model_name(name: str) -> tuple[str, list[str]]:
         raise InputError("empty model name; write e.g. 'bicycle' or 'bicycle+actuator_lag'")
     base, effects = parts[0], parts[1:]
     if base not in BASES:
+        if base.startswith("greybox"):
+            raise InputError(f"{base!r} (study 2's grey-box) is fitted by 'stid fit --model {base}' only; "
+                             "diagnose, compare, report and plan work on the bicycle and its effects")
         raise InputError(f"unknown base model {base!r}: a model starts with one of {', '.join(BASES)} "
                          f"(e.g. 'bicycle+{base}' if {base!r} is an effect)")
     if len(set(effects)) != len(effects):
