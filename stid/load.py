@@ -203,7 +203,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     steer = convert.steer_angle(s["steer_us"], vehicle)
     ppr = int(hello.get("wheel", {}).get("pulses_per_rev", vehicle.pulses_per_rev))
     vx = units.wheel_speed(t_us, s["t_us"], s["wheel_count"], s["wheel_t_us"], ppr, vehicle.wheel_radius,
-                           int(hello.get("mod", 1 << 30)))
+                           int(hello.get("mod", 1 << 30)), centred=True)
     no_pulse = np.isnan(steer)
     steer = np.where(no_pulse, 0.0, steer)
     sig = {"steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax}

@@ -80,56 +80,61 @@ def combine(cov_noise: np.ndarray, cov_jack: np.ndarray | None):
     return cov_noise * np.outer(scale, scale), [i for i, s in enumerate(scale) if s > 1.0]
 
 
-# -- an error common to all the data, that grows with the steering amplitude -----------
+# -- an error common to all the data: the linear model's small-angle geometry -----------
 #
 # The jackknife's blocks are alike (each holds a few seconds of the same driving), so an
-# error common to all of them is invisible to it. The commonest such error in a linear
-# single track is a nonlinearity: large-angle geometry (the front force acts along the
-# wheel, cos(delta)), tyre curvature, the speed the steering drags off. Left and right
-# are symmetric, so it grows with the square of the amplitude, and the cornering
-# stiffness a user wants is the slope at zero slip: the linear limit. So the data are
-# split at the median of the steer's local amplitude, the estimate refitted on each
-# half (one Gauss-Newton step, as the jackknife), and when the halves disagree by more
-# than their noise (|z| > Z_SIGNIFICANT), the interval is widened by the extrapolated
-# distance from the estimate to its zero-amplitude limit, assuming an amplitude^2 law.
-# (The halves share the vehicle's memory across their boundaries, so this sees only
-# part of the dependence: it is a lower bound on that error, not its measure.)
+# error common to all of them is invisible to it. The one every car has: the linear
+# single track takes the small-angle geometry. On a car the front force acts along the
+# steered wheel (lateral part F cos delta) and slip angles are atan((vy + a r)/vx), not
+# the ratio; at an RC car's steer angles that moves Cf and Cr by tenths of a percent,
+# more than their noise. Two steps:
+#
+# - is it in the data? A probe for the family of errors symmetric in the steer: the
+#   front force times (1 + kappa delta^2), its sensitivity at kappa = 0 the response to
+#   Cf alpha_f delta^2 (one simulation), kappa fitted to first order with the others.
+#   An exact linear bicycle shows kappa = 0; a car shows about -1/2 (cos delta).
+# - how far does it move the answer? The exact geometry, linear tyres, at the estimate:
+#   its outputs minus the model's (one pass: the correction is of second order in the
+#   angles), and the one least-squares step that change asks of the parameters.
+#
+# When kappa is significant (|z| > Z_SIGNIFICANT), each interval grows by that step:
+# it then holds both the linear model's answer and the exact geometry's.
 
-AMPLITUDE_WINDOW_S = 1.0
 Z_SIGNIFICANT = 2.0
 
 
-def amplitude_envelope(steer: np.ndarray, dt: float, window_s: float = AMPLITUDE_WINDOW_S) -> np.ndarray:
-    """Local rms of the steer about its local mean [rad], over a centred window."""
-    from stid.segments import uniform_filter1d
-
-    w = max(3, int(window_s / dt))
-    m = uniform_filter1d(steer, w)
-    return np.sqrt(np.maximum(uniform_filter1d((steer - m) ** 2, w), 0.0))
-
-
-def _step(J, r, rows):
-    step, *_ = np.linalg.lstsq(J[rows], -r[rows], rcond=None)
-    return step
+def steer_square_response(model, p: dict, st) -> np.ndarray:
+    """d(ay, r)/d(kappa) at kappa = 0 on a stretch: the response to the front-axle force
+    Cf alpha_f delta^2 [N] (n, 2)."""
+    alpha_f = model.simulate(p, st.steer, st.dt, st.vx_series, outputs=("alpha_f",), sensors=st.sensors)[:, 0]
+    sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], ["dFf"], st.sensors)
+    return sim(p["Cf"] * alpha_f * st.steer ** 2)
 
 
-def amplitude_allowance(J: np.ndarray, r: np.ndarray, amp_rows: np.ndarray, sandwich):
-    """How far the estimate sits from its zero-amplitude limit, in the fit's coordinates,
-    where the data show it; zeros where the halves agree within noise.
+def exact_geometry_change(model, p: dict, st) -> np.ndarray:
+    """Outputs with exact large-angle geometry (cos delta on the front force, atan slip
+    angles) minus the model's, at the same parameters, on a stretch: (n, 2)."""
+    a = model.simulate(p, st.steer, st.dt, st.vx_series, outputs=("alpha_f", "alpha_r"), sensors=st.sensors)
+    d = st.steer
+    x_f, x_r = d - a[:, 0], -a[:, 1]  # (vy + a r)/vx and (vy - b r)/vx, linear slip's arguments
+    dFf = p["Cf"] * ((d - np.arctan(x_f)) * np.cos(d) - (d - x_f))
+    dFr = p["Cr"] * (x_r - np.arctan(x_r))
+    sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], ["dFf", "dFr"], st.sensors)
+    return sim(np.column_stack([dFf, dFr]))
 
-    ``amp_rows`` is the steer amplitude at each residual row; ``sandwich(mask)`` returns
-    the noise covariance of a refit on the rows in ``mask``. Returns (allowance, z)."""
-    lo = amp_rows <= np.median(amp_rows)
-    hi = ~lo
+
+def geometry_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, change: np.ndarray, cov_of):
+    """(allowance per parameter in the fit's coordinates, z of the probe). ``probe`` and
+    ``change`` are residual rows (scaled as r); ``cov_of(J, r)`` the noise covariance of a
+    fit with Jacobian J and residuals r."""
     p = J.shape[1]
-    if lo.sum() < 4 * p or hi.sum() < 4 * p:
-        return np.zeros(p), np.zeros(p)
-    x_lo, x_hi = _step(J, r, lo), _step(J, r, hi)
-    var = np.diag(sandwich(lo)) + np.diag(sandwich(hi))
-    z = (x_hi - x_lo) / np.sqrt(np.maximum(var, 1e-300))
-    a2 = amp_rows ** 2
-    e_all, e_lo, e_hi = a2.mean(), a2[lo].mean(), a2[hi].mean()
-    if e_hi - e_lo <= 1e-12 * max(e_all, 1e-300):
+    if not np.any(probe):
+        return np.zeros(p), 0.0
+    Jaug = np.column_stack([J, probe])
+    step, *_ = np.linalg.lstsq(Jaug, -r, rcond=None)
+    cov = cov_of(Jaug, r + Jaug @ step)
+    z = float(step[-1] / np.sqrt(max(cov[-1, -1], 1e-300)))
+    if abs(z) <= Z_SIGNIFICANT:
         return np.zeros(p), z
-    bias = (x_hi - x_lo) * e_all / (e_hi - e_lo)  # the estimate minus its zero-amplitude limit
-    return np.where(np.abs(z) > Z_SIGNIFICANT, np.abs(bias), 0.0), z
+    shift, *_ = np.linalg.lstsq(J, -change, rcond=None)
+    return np.abs(shift), z

@@ -128,25 +128,28 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                              f"jackknife, {len(bm)} blocks)"
                              + (f"; model error widened {', '.join(space.free[i] for i in widened)} "
                                 f"(t with {jk_dof} dof)" if widened else ""))
-        amp_rows = np.concatenate([np.repeat(jk.amplitude_envelope(st.steer, st.dt)[k], 2)
-                                   for st, k in zip(stretches, keeps)])
+        # a symmetric steer nonlinearity the linear model lacks (see stid.fit.intervals)
+        probe = np.concatenate([
+            (jk.steer_square_response(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
 
-        def subset_cov(rows):
-            Jm, rm = res.jac * rows[:, None], res.fun * rows
+        def augmented_cov(Jaug, r):
             Jb, rb, q = [], [], 0
             for k in keeps:
                 m = int(k.sum()) * 2
-                Jb.append(Jm[q:q + m].reshape(-1, 2, n_free))
-                rb.append(rm[q:q + m].reshape(-1, 2))
+                Jb.append(Jaug[q:q + m].reshape(-1, 2, Jaug.shape[1]))
+                rb.append(r[q:q + m].reshape(-1, 2))
                 q += m
             return covariance_sandwich(Jb, rb)
 
-        allow_x, _ = jk.amplitude_allowance(res.jac, res.fun, amp_rows, subset_cov)
+        change = np.concatenate([
+            (jk.exact_geometry_change(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
+        allow_x, z = jk.geometry_allowance(res.jac, res.fun, probe, change, augmented_cov)
         allowance = allow_x * space.dp_dx(res.x)  # to physical units (first order)
         grown = [n for n, a in zip(space.free, allowance) if a > 0]
         if grown:
-            interval_note += ("; the estimates move with the steering amplitude (a nonlinearity the model lacks): "
-                              f"{', '.join(grown)} widened by the distance to their zero-amplitude limit")
+            interval_note += ("; the data show the large-angle geometry the linear model leaves out (a front force "
+                              f"that changes with the square of the steer, z = {z:.1f}): {', '.join(grown)} widened "
+                              "to hold the answer with exact geometry (cos delta, atan slip angles) too")
 
     preds = [Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k)
              for st, k in zip(stretches, keeps)]
