@@ -5,7 +5,6 @@ plus a CSV in the import contract and the truth beside them."""
 from __future__ import annotations
 
 import csv
-import math
 import tempfile
 import time
 from pathlib import Path
@@ -109,8 +108,9 @@ def write_csv(run: SimRun, stream: bytes, path) -> None:
     ax = (volts(s["ax"]) / sens.vs - 0.5) * 10 * g
     r = np.radians((volts(s["yaw"]) - sens.gyro_zero) / sens.gyro_sens)
     steer = np.where(s["steer_us"] > 0, (s["steer_us"] - car.steer_center_us) / car.steer_us_per_rad, 0.0)
-    vx = _hall_speed(t_raw, s["wheel_count"].astype(np.int64), s["wheel_t_us"].astype(np.int64),
-                     2 * math.pi * car.wheel_radius / run.cfg.wheel_ppr)
+    # the logger's edge-period speed, each interval's mean at its middle (as stid export writes it)
+    vx = units.wheel_speed(t_mcu_us, s["t_us"], s["wheel_count"], s["wheel_t_us"], run.cfg.wheel_ppr,
+                           car.wheel_radius, centred=True)
     cols = {"t": t, "steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax, "delta_cmd": steer}
     if run.cfg.beta_sensor is not None:
         # an optical slip sensor (Correvit-style) sampled with the firmware's samples
@@ -137,16 +137,3 @@ def write_columns(path, cols: dict) -> None:
             w.writerow([f"{row[0]:.6f}"] + [f"{x:.6g}" for x in row[1:]])
 
 
-def _hall_speed(t_raw, count, edge_t, per_pulse):
-    """Distance per pulse over the time between the two latest edges, held."""
-    v = np.zeros(len(count))
-    last_edges = []
-    for i in range(len(count)):
-        if i == 0 or count[i] != count[i - 1]:
-            last_edges.append(int(edge_t[i]))
-            last_edges = last_edges[-2:]
-        if len(last_edges) == 2:
-            dt = ((last_edges[1] - last_edges[0]) % p.MOD) * 1e-6
-            age = ((int(t_raw[i]) - last_edges[1]) % p.MOD) * 1e-6
-            v[i] = per_pulse / max(dt, age) if dt > 0 else 0.0
-    return v
