@@ -64,6 +64,18 @@ def _rows(quick: bool, data_dir):
                f"(x{ratio:.1f})", "≤ 1.5x linear in candidates", ratio <= 1.5 * row["candidates"] / c0["candidates"])
 
 
+def _plan_rows(summary: dict, what: str):
+    """Predicted (stid plan) over Monte-Carlo sd per parameter, and the sensor-noise-only plan's."""
+    from benchmarks import accuracy_bench as ab
+
+    for k in ab.TRUTH:
+        st, pl, ps = summary["stid"][k], summary["plan_sd"][k], summary["plan_still_sd"][k]
+        r = pl / st["sd"]
+        yield ("plan", f"{what}: {k}",
+               f"{r:.2f} (predicted {pl:.3g}, observed {st['sd']:.3g}); from the stand-still alone {ps / st['sd']:.2f}",
+               "0.7-1.4", 0.7 <= r <= 1.4)
+
+
 def _accuracy_rows(quick: bool, data_dir):
     """Monte Carlo over seeds (benchmarks/accuracy_bench.py): the shipped `stid fit` against
     study (1)'s method, with and without stid's sensor model; interval coverage; `stid plan`'s
@@ -98,24 +110,14 @@ def _accuracy_rows(quick: bool, data_dir):
         yield ("accuracy", f"clean, constant speed, {n} seeds: {k} sd / Cramér-Rao bound (sensor noise)",
                f"stid {st['sd'] / bound:.2f}x (sd {st['sd']:.3g}); study {sy['sd'] / bound:.1f}x; study+sensors "
                f"{ss['sd'] / bound:.1f}x", "stid ≤ 1.2x", st["sd"] <= 1.2 * bound)
-    for k in ab.TRUTH:
-        st, pl, ps = clean["stid"][k], clean["plan_sd"][k], clean["plan_still_sd"][k]
-        r = pl / st["sd"]
-        yield ("plan", f"`stid plan` sd from a run's residuals / Monte-Carlo sd, same manoeuvre: {k}",
-               f"{r:.2f} (predicted {pl:.3g}, observed {st['sd']:.3g}); from the stand-still alone {ps / st['sd']:.2f}",
-               "0.7-1.4", 0.7 <= r <= 1.4)
+    yield from _plan_rows(clean, "`stid plan` sd from a run's residuals / Monte-Carlo sd, same manoeuvre")
     track, _ = ab.monte_carlo(data_dir, n_track, estimators=("stid",), first_seed=5000, speed_profile="track")
     for k in ab.TRUTH:
         st = track["stid"][k]
         yield ("accuracy", f"clean, track speed profile (±25%), {n_track} seeds: {k} bias; interval coverage",
                f"{b(st)}; covered {100 * st['coverage']:.0f}%, se / sd {st['se_over_sd']:.2f}",
                "unbiased; coverage ≥ 85%", st["unbiased"] and st["coverage"] >= 0.85)
-    for k in ab.TRUTH:
-        st, pl, ps = track["stid"][k], track["plan_sd"][k], track["plan_still_sd"][k]
-        r = pl / st["sd"]
-        yield ("plan", f"same, on the track runs (residuals of each run pair; constant-speed plan): {k}",
-               f"{r:.2f} (predicted {pl:.3g}, observed {st['sd']:.3g}); from the stand-still alone {ps / st['sd']:.2f}",
-               "0.7-1.4", 0.7 <= r <= 1.4)
+    yield from _plan_rows(track, "same, on the track runs (residuals of each run pair; constant-speed plan)")
     lag, _ = ab.monte_carlo(data_dir, n_lag, effects=("actuator_lag",), model_name="bicycle+actuator_lag",
                             estimators=est, first_seed=3000)
     for k in ab.TRUTH:
