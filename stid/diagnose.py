@@ -32,7 +32,7 @@ from scipy.special import chdtrc  # chi-square survival function (scipy.stats co
 from stid.analysis.noise_floor import noise_floor
 from stid.analysis.residuals import analyse
 from stid.fit import dataset
-from stid.fit.time_fit import fit_time
+from stid.fit.time_fit import _keep, fit_time, simulate
 from stid.models.effect import available_effects
 from stid.models.model import Model, parse_model_name
 
@@ -199,10 +199,8 @@ def _fit_one(args):
 def _cost(model, stretches, p, sigma, discard_s=0.5):
     c = 0.0
     for st in stretches:
-        k = (st.t - st.t[0]) >= discard_s
-        if st.valid is not None:
-            k &= st.valid
-        c += float(np.sum(((model.simulate(p, st.steer, st.dt, st.vx_series, sensors=st.sensors)[k] - st.y[k]) / sigma) ** 2))
+        k = _keep(st, discard_s)
+        c += float(np.sum(((simulate(model, p, st)[k] - st.y[k]) / sigma) ** 2))
     return c
 
 

@@ -50,7 +50,7 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
         raise InputError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic at its start): "
                          "corrupted, or not written by stid-log")
     run = load_csv(path)
-    run.meta["sensor_chain"] = sensor_chain.for_csv(vehicle)
+    run.meta["sensor_chain"] = sensor_chain.from_vehicle(vehicle)
     return [run]
 
 

@@ -57,7 +57,9 @@ def from_hello(hello: dict, vehicle) -> dict:
     return _override(chain, vehicle)
 
 
-def for_csv(vehicle) -> dict:
+def from_vehicle(vehicle) -> dict:
+    """The chain when the data declare none (a CSV; a model's default): the vehicle
+    file's [sensors], else no filter."""
     return _override({"ay": 0.0, "r": 0.0, "source": CSV_NONE}, vehicle)
 
 

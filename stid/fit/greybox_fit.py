@@ -101,7 +101,7 @@ class _Problem:
         self.keeps = [((pc["t"] - pc["t"][0]) >= discard_s) & pc["valid"] for pc in pieces]
         self.filters = []  # the sensors' own low-pass, as in the linear models (stid.sensor_chain)
         for pc in pieces:
-            chain = pc.get("sensors") or sensor_chain.for_csv(vehicle)
+            chain = pc.get("sensors") or sensor_chain.from_vehicle(vehicle)
             bw = {1: float(chain.get("ay", 0.0) or 0.0), 2: float(chain.get("r", 0.0) or 0.0)}
             fs = 1.0 / (pc["t"][1] - pc["t"][0])
             self.filters.append({col: signal.bilinear([2 * np.pi * f], [1, 2 * np.pi * f], fs)
@@ -159,7 +159,7 @@ def fit_greybox(runs, vehicle, form: str = "greybox", discard_s: float = 0.3) ->
     space, res, p_hat, cov = prob.fit(model.defaults())
     result = _result(prob, space, res, p_hat, cov)
     result.interval = "95% intervals: noise only (robust covariance of the output-error fit)"
-    for chain in sorted({sensor_chain.describe(pc.get("sensors") or sensor_chain.for_csv(vehicle))
+    for chain in sorted({sensor_chain.describe(pc.get("sensors") or sensor_chain.from_vehicle(vehicle))
                          for pc in pieces}):
         result.note(chain)
     for w in sensor_chain.undeclared_warnings(runs, vehicle):

@@ -11,12 +11,12 @@ spread of those estimates is the parameter's variance under noise *and* the mode
 error that varies between blocks. Each refit is one Gauss-Newton step from the
 full estimate with the block's rows removed from the Jacobian and residuals (the
 linearised jackknife): leaving out an eighth of the data moves the estimate
-little, so the step is the refit to first order, at no simulation cost. An error that is the same in every block (a
-bias common to all the data) is invisible to any interval computed from the data;
-the README's accuracy table measures that part on the simulator.
+little, so the step is the refit to first order, at no simulation cost.
 
 The interval printed is the wider of the two, per parameter, with Student's t on
-K - 1 degrees of freedom when the jackknife is the wider one.
+K - 1 degrees of freedom when the jackknife is the wider one; plus, where the data
+show it, the distance to the exact-geometry answer (below): an error common to all
+the blocks, which no jackknife or bootstrap can see.
 """
 
 from __future__ import annotations
@@ -28,35 +28,21 @@ K_MAX = 8
 K_MIN = 5  # fewer blocks give a variance too uncertain to be worth printing
 
 
-def blocks(keeps: list, dts: list, k_max: int = K_MAX) -> list:
-    """K masks per stretch (lists of bool arrays), each selecting one contiguous block of
-    the kept samples; empty when the data are too short for K_MIN blocks."""
-    counts = [int(k.sum()) for k in keeps]
-    seconds = sum(c * dt for c, dt in zip(counts, dts))
+def row_blocks(n_samples: int, seconds: float, k_max: int = K_MAX):
+    """Each residual row's block (two rows per sample, samples in order: contiguous time,
+    stretch after stretch) and the number of blocks; (None, 0) when the data are too short
+    for K_MIN blocks of BLOCK_MIN_S."""
     K = int(min(k_max, seconds // BLOCK_MIN_S))
     if K < K_MIN:
-        return []
-    total = sum(counts)
-    edges = np.linspace(0, total, K + 1).round().astype(int)
-    out = []
-    for b in range(K):
-        lo, hi = edges[b], edges[b + 1]
-        masks, start = [], 0
-        for k, c in zip(keeps, counts):
-            idx = np.flatnonzero(k)
-            m = np.zeros(len(k), bool)
-            sel = idx[max(lo - start, 0):max(min(hi - start, c), 0)]
-            m[sel] = True
-            masks.append(m)
-            start += c
-        out.append(masks)
-    return out
+        return None, 0
+    block = np.minimum(np.arange(n_samples) * K // max(n_samples, 1), K - 1)
+    return np.repeat(block, 2), K
 
 
-def jackknife_cov(J: np.ndarray, r: np.ndarray, row_block: np.ndarray, K: int) -> np.ndarray | None:
+def jackknife_cov(J: np.ndarray, r: np.ndarray, row_block, K: int) -> np.ndarray | None:
     """Delete-a-block jackknife covariance in the fit's own coordinates, linearised: J and
     r are the Jacobian and residuals at the optimum, ``row_block`` each row's block (0..K-1)."""
-    if K < K_MIN:
+    if row_block is None or K < K_MIN:
         return None
     xs = []
     for b in range(K):

@@ -96,54 +96,30 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             idx = np.flatnonzero(k)[:AR_ORDER]
             k[idx] = False
 
-    n_free = len(space.free)
-    J_blocks, r_blocks = [], []
-    pos = 0
-    r_all = res.fun
-    for k in keeps:
-        m = int(k.sum()) * 2
-        J_blocks.append(res.jac[pos:pos + m].reshape(-1, 2, n_free))
-        r_blocks.append(r_all[pos:pos + m].reshape(-1, 2))
-        pos += m
-    cov = to_physical(covariance_sandwich(J_blocks, r_blocks), space, res.x)
+    cov = to_physical(_sandwich(res.jac, res.fun, keeps), space, res.x)
     interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
     widened, jk_dof, allowance = [], None, None
     if intervals == "model-error":
-        bm = jk.blocks(keeps, [st.dt for st in stretches])
-        row_block = np.full(len(res.fun), -1)
-        pos = 0
-        for i, k in enumerate(keeps):
-            m = int(k.sum())
-            for b, masks in enumerate(bm):
-                row_block[pos:pos + 2 * m] = np.where(np.repeat(masks[i][k], 2), b, row_block[pos:pos + 2 * m])
-            pos += 2 * m
-        cov_jx = jk.jackknife_cov(res.jac, res.fun, row_block, len(bm))
+        seconds = sum(int(k.sum()) * st.dt for st, k in zip(stretches, keeps))
+        row_block, n_blocks = jk.row_blocks(len(res.fun) // 2, seconds)
+        cov_jx = jk.jackknife_cov(res.jac, res.fun, row_block, n_blocks)
         if cov_jx is None:
             interval_note += f"; too little data for a model-error interval (needs {jk.K_MIN} blocks of " \
                              f"{jk.BLOCK_MIN_S:g} s)"
         else:
             cov, widened = jk.combine(cov, to_physical(cov_jx, space, res.x))
-            jk_dof = len(bm) - 1
+            jk_dof = n_blocks - 1
             interval_note = (f"95% intervals: the wider of noise (Newey-West) and model error (delete-a-block "
-                             f"jackknife, {len(bm)} blocks)"
+                             f"jackknife, {n_blocks} blocks)"
                              + (f"; model error widened {', '.join(space.free[i] for i in widened)} "
                                 f"(t with {jk_dof} dof)" if widened else ""))
         # a symmetric steer nonlinearity the linear model lacks (see stid.fit.intervals)
         probe = np.concatenate([
             (jk.steer_square_response(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
 
-        def augmented_cov(Jaug, r):
-            Jb, rb, q = [], [], 0
-            for k in keeps:
-                m = int(k.sum()) * 2
-                Jb.append(Jaug[q:q + m].reshape(-1, 2, Jaug.shape[1]))
-                rb.append(r[q:q + m].reshape(-1, 2))
-                q += m
-            return covariance_sandwich(Jb, rb)
-
         change = np.concatenate([
             (jk.exact_geometry_change(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
-        allow_x, z = jk.geometry_allowance(res.jac, res.fun, probe, change, augmented_cov)
+        allow_x, z = jk.geometry_allowance(res.jac, res.fun, probe, change, lambda J, r: _sandwich(J, r, keeps))
         allowance = allow_x * space.dp_dx(res.x)  # to physical units (first order)
         grown = [n for n, a in zip(space.free, allowance) if a > 0]
         if grown:
@@ -172,6 +148,18 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
 
 
 AR_ORDER = 12
+
+
+def _sandwich(J: np.ndarray, r: np.ndarray, keeps: list) -> np.ndarray:
+    """Newey-West covariance of a fit whose residual rows are the kept samples of each
+    stretch in turn, two outputs per sample."""
+    J_blocks, r_blocks, pos = [], [], 0
+    for k in keeps:
+        m = int(k.sum()) * 2
+        J_blocks.append(J[pos:pos + m].reshape(-1, 2, J.shape[1]))
+        r_blocks.append(r[pos:pos + m].reshape(-1, 2))
+        pos += m
+    return covariance_sandwich(J_blocks, r_blocks)
 
 
 def _ar_models(residual_blocks, order: int = AR_ORDER):

@@ -63,7 +63,7 @@ class Model:
         # simulate/build); this default is the vehicle file's [sensors], else none.
         from stid import sensor_chain
 
-        chain = sensor_chain.for_csv(vehicle)
+        chain = sensor_chain.from_vehicle(vehicle)
         self.sensor_bandwidth = {"ay": chain["ay"], "r": chain["r"]}
 
     @property
@@ -164,14 +164,9 @@ class Model:
         base = sim(np.column_stack([steer, zeros, zeros]))
         no = len(outs)
 
-        if v.ndim == 0 or np.ptp(v) == 0.0:  # constant speed: scipy filters, only the pairs needed
-            slip_sim = self.simulator(p, vx, dt, ["alpha_f", "alpha_r"], ["dFf", "dFr"], sensors)
+        def slip_of_force(f):
+            return sim(np.column_stack([zeros, f]))[:, no:]
 
-            def slip_of_force(f):
-                return slip_sim(f)
-        else:
-            def slip_of_force(f):
-                return sim(np.column_stack([zeros, f]))[:, no:]
         Fzf, Fzr = ctx.axle_loads()
         scale = tol * min(Fzf, Fzr)
         key = (n, float(steer[0]), float(steer[n // 2]), float(v.ravel()[0]), float(v.ravel()[-1]))
