@@ -121,7 +121,7 @@ def write_csv(run: SimRun, stream: bytes, path) -> None:
         cols["beta"] = np.interp(t_true, tr.t, beta) + run.cfg.beta_sensor * rng.standard_normal(len(t))
     if run.cfg.wheel_speeds:
         # the four halls the firmware saw, by the host's edge-period method (host.units)
-        w = units.wheel_speeds(t_mcu_us, s, hello)
+        w = units.wheel_speeds(t_mcu_us, s, hello, centred=True)
         for name in ("w_fl", "w_fr", "w_rl", "w_rr"):
             cols[name] = w[name]
         cols["vx"] = 0.5 * (w["w_fl"] + w["w_fr"]) * car.wheel_radius  # free-rolling fronts measure the speed

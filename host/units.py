@@ -113,7 +113,7 @@ def declared_wheels(hello: dict) -> list:
     return list(wheels[:len(_WHEEL_FIELDS)])
 
 
-def wheel_speeds(t_mcu_us, samples, hello: dict, mod: int = 1 << 30) -> dict:
+def wheel_speeds(t_mcu_us, samples, hello: dict, mod: int = 1 << 30, centred: bool = False) -> dict:
     """Angular speed [rad/s] of every wheel the HELLO declares, from its hall pulses.
 
     ``t_mcu_us`` is the unwrapped sample time, ``samples`` the sample array (fields
@@ -123,7 +123,8 @@ def wheel_speeds(t_mcu_us, samples, hello: dict, mod: int = 1 << 30) -> dict:
     a position other than fl, fr, rl, rr, e.g. ``w_rear`` from a protocol 1 HELLO),
     each by the edge-period method of ``wheel_speed`` with that wheel's
     ``pulses_per_rev``. A wheel whose fields the samples do not carry (edge time
-    0xFFFFFFFF) is NaN. No wheels declared (no HELLO): an empty dict.
+    0xFFFFFFFF) is NaN. No wheels declared (no HELLO): an empty dict. ``centred`` as
+    in ``wheel_speed``.
     """
     out = {}
     names = samples.dtype.names
@@ -138,6 +139,6 @@ def wheel_speeds(t_mcu_us, samples, hello: dict, mod: int = 1 << 30) -> dict:
         absent = edge_t == 0xFFFFFFFF
         # radius 1 m: ground speed per metre of radius is the angular speed
         v = wheel_speed(t_mcu_us, samples["t_us"], samples[count_f], np.where(absent, 0, edge_t),
-                        int(w.get("pulses_per_rev", 1)), 1.0, mod)
+                        int(w.get("pulses_per_rev", 1)), 1.0, mod, centred)
         out[key] = np.where(absent, np.nan, v)
     return out

@@ -209,7 +209,8 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     sig = {"steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax}
     if not np.all(np.isnan(az)):
         sig["az"] = az
-    wheels = {k: w for k, w in units.wheel_speeds(t_us, s, hello, int(hello.get("mod", 1 << 30))).items()
+    wheels = {k: w for k, w in units.wheel_speeds(t_us, s, hello, int(hello.get("mod", 1 << 30)),
+                                                   centred=True).items()
               if k in OPTIONAL and not np.all(np.isnan(w))}
     if len(wheels) == 4:  # the four wheel speeds study 2's grey-box needs [rad/s]
         sig.update(wheels)

@@ -64,7 +64,9 @@ def unhold(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     Held, the speed lags by one to one and a half edge periods (70 ms at 4 m/s with one
     magnet per wheel), differently on each wheel: the slip from the difference of two
     such wheels is wrong by acceleration x lag difference / speed, as large as the slip
-    itself. ``x`` that is not held (fewer than half its samples repeat) is returned as is.
+    itself. ``x`` that is not held (fewer than half its samples repeat) is returned as is:
+    stid's own loader centres the speeds at the exact edge times already
+    (``host.units.wheel_speeds(centred=True)``); this is for CSVs from loggers that hold.
     """
     x = np.asarray(x, float)
     new = np.flatnonzero(np.diff(x) != 0) + 1  # samples where a new value arrived
