@@ -40,7 +40,8 @@ def _pieces(runs, target_fs=100.0):
         missing = [w for w in WHEELS if w not in run.extra]
         if missing:
             raise InputError(f"{run.name}: the grey-box model needs the wheel speeds {', '.join(WHEELS)} "
-                             "[rad/s] (CSV columns); this run lacks " + ", ".join(missing))
+                             "[rad/s]; this run lacks " + ", ".join(missing) + ". Log with four hall sensors "
+                             "(firmware WHEELS = 4; stid-sim --wheel-speeds) or give them as CSV columns")
         moving = np.flatnonzero(run.vx > 1.0)
         if len(moving) < 2 * run.fs:
             raise InputError(f"{run.name}: moving (vx > 1 m/s) for less than 2 s")
