@@ -6,6 +6,7 @@ reads them (and may corrupt, delay or serve them on a pty).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -33,27 +34,35 @@ def micropython_exe() -> str:
     return found
 
 
-def firmware_env(stimulus: Path, realtime: bool = False) -> dict:
+def firmware_env(stimulus: Path, realtime: bool = False, board_opts: dict | None = None,
+                 firmware_dir: Path = FIRMWARE_DIR) -> dict:
+    """board_opts: the simulated board's behaviour beyond its defaults (simboard._BOARDS),
+    e.g. {"micropython": [1, 25, 0]}, {"isr_us": 100}, {"adc_fault_at_us": 2000000}."""
     env = dict(os.environ)
     # board/ first: its machine.py and time.py shadow the built-ins
-    env["MICROPYPATH"] = f"{BOARD_DIR}:{FIRMWARE_DIR}"
+    env["MICROPYPATH"] = f"{BOARD_DIR}:{firmware_dir}"
     env["STID_SIM_STIMULUS"] = str(stimulus)
     env["STID_SIM_REALTIME"] = "1" if realtime else "0"
+    env["STID_SIM_BOARD"] = json.dumps(board_opts or {})
     return env
 
 
-def start_firmware(stimulus: Path, rate_hz: int = 500, batch: int = 10, ring_size: int = 256,
-                   realtime: bool = False) -> subprocess.Popen:
+def start_firmware(stimulus: Path, rate_hz: int = 500, batch: int = 10, ring_size: int | None = 256,
+                   realtime: bool = False, board_opts: dict | None = None,
+                   firmware_dir: Path = FIRMWARE_DIR) -> subprocess.Popen:
+    """ring_size None: the firmware's own default (sized for a 1 s host stall)."""
     cmd = [micropython_exe(), "-X", "heapsize=64M", str(BOARD_DIR / "run_firmware.py"),
-           str(rate_hz), str(batch), str(ring_size)]
+           str(rate_hz), str(batch), str(ring_size or 0)]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=firmware_env(stimulus, realtime), bufsize=0)
+                            env=firmware_env(stimulus, realtime, board_opts, firmware_dir), bufsize=0)
 
 
 def run_firmware(stimulus: Path, **kw) -> bytes:
     """Run to the end of the stimulus, faster than real time; return the byte stream."""
     proc = start_firmware(stimulus, **kw)
     out, err = proc.communicate()
+    if kw.get("board_opts") and err:  # what the board did (resets, ISR faults) goes to stderr
+        sys.stderr.write(err.decode(errors="replace"))
     if proc.returncode != 0:
         raise RuntimeError("firmware failed on the simulated board:\n" + err.decode(errors="replace"))
     return out

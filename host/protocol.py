@@ -7,18 +7,24 @@ arrays in one call.
 Versions: the receiver accepts every version in ``VERSIONS``; the header's
 version byte and the frame type together name the record layout
 (``RECORD_DTYPES``). Version 1 (22-byte records, no steer time) is still decoded:
-its samples get ``steer_t_us = STEER_T_UNKNOWN``.
+its samples get ``steer_t_us = STEER_T_UNKNOWN``. Version 3 keeps the version 2
+sample records, lengthens STATUS (``missed``, ``late_max_us``) and adds the
+compact binary HELLO (type 5, ``HELLO_COMPACT``).
 """
 
 import numpy as np
 
-VERSION = 2  # what the firmware sends
-VERSIONS = (1, 2)  # what the host decodes
-HELLO, SAMPLES, STATUS, SAMPLES4 = 1, 2, 3, 4
-TYPE_NAMES = {HELLO: "hello", SAMPLES: "samples", STATUS: "status", SAMPLES4: "samples4"}
+VERSION = 3  # what the firmware sends
+VERSIONS = (1, 2, 3)  # what the host decodes
+HELLO, SAMPLES, STATUS, SAMPLES4, HELLO_COMPACT = 1, 2, 3, 4, 5
+TYPE_NAMES = {HELLO: "hello", SAMPLES: "samples", STATUS: "status", SAMPLES4: "samples4",
+              HELLO_COMPACT: "hello_compact"}
 SAMPLE_TYPES = (SAMPLES, SAMPLES4)
 
 MOD = 1 << 30  # seq, t_us and sample index all count modulo 2^30
+# The baud the firmware sets on a UART link (ESP32 console; boards.py PROFILES): the
+# default a host should open a port at (USB-CDC ignores it)
+LINK_BAUD = 921600
 HEADER_SIZE = 10
 CRC_SIZE = 4
 MAX_FRAME = 1024  # bytes before COBS
@@ -45,7 +51,8 @@ assert (SAMPLE_DTYPE_V1.itemsize, SAMPLE_DTYPE.itemsize, SAMPLE4_DTYPE.itemsize)
 SAMPLE_SIZE = SAMPLE_DTYPE.itemsize
 SAMPLE4_SIZE = SAMPLE4_DTYPE.itemsize
 
-RECORD_DTYPES = {(1, SAMPLES): SAMPLE_DTYPE_V1, (2, SAMPLES): SAMPLE_DTYPE, (2, SAMPLES4): SAMPLE4_DTYPE}
+RECORD_DTYPES = {(1, SAMPLES): SAMPLE_DTYPE_V1, (2, SAMPLES): SAMPLE_DTYPE, (2, SAMPLES4): SAMPLE4_DTYPE,
+                 (3, SAMPLES): SAMPLE_DTYPE, (3, SAMPLES4): SAMPLE4_DTYPE}
 
 # Every field a decoded sample has, whatever its frame carried (the union, in record order).
 SAMPLE_FIELDS = SAMPLE4_DTYPE.names
@@ -91,9 +98,40 @@ def samples_from_records(parts) -> np.ndarray:
     return out[0] if len(out) == 1 else np.concatenate(out)
 
 
-STATUS_FMT = "<IIIIIHHHH"
-STATUS_FIELDS = ("uptime_ms", "samples", "overruns", "frames", "tx_short",
-                 "isr_max_us", "isr_last_us", "ring_peak", "ring_size")
-STATUS_SIZE = 28
+STATUS_FIELDS_V2 = ("uptime_ms", "samples", "overruns", "frames", "tx_short",
+                    "isr_max_us", "isr_last_us", "ring_peak", "ring_size")
+# version 3 appends the timer periods in which no sample was taken (their indices are
+# skipped, so the host sees the gap) and the largest lateness of a sample instant
+STATUS_FIELDS = STATUS_FIELDS_V2 + ("missed", "late_max_us")
+STATUS_LAYOUTS = {1: ("<IIIIIHHHH", STATUS_FIELDS_V2), 2: ("<IIIIIHHHH", STATUS_FIELDS_V2),
+                  3: ("<IIIIIHHHHIH", STATUS_FIELDS)}
+STATUS_FMT = STATUS_LAYOUTS[VERSION][0]
+STATUS_SIZE = 34  # version 3; versions 1 and 2: 28
+STATUS_SIZES = {1: 28, 2: 28, 3: 34}
 
-ERROR_KINDS = ("cobs", "short", "crc", "version", "type", "length", "hello", "too_long")
+# version byte 0 or unknown -> "version"; a CRC-valid frame of a version above
+# max(VERSIONS) -> "version_newer" (the log needs a newer stid)
+ERROR_KINDS = ("cobs", "short", "crc", "version", "version_newer", "type", "length", "hello", "too_long")
+
+
+# Compact HELLO (type 5, version 3): the configuration in ~80 bytes so that it gets
+# through a lossy link (PROTOCOL.md, "HELLO_COMPACT"). Fixed part, then `uid_len`
+# bytes of machine.unique_id(). Codes index the tuples below.
+HELLO_C_FMT = "<IBBHB3B3BBBBHH" + "BH" * 5 + "HIBB4sBIHB"
+HELLO_C_FIELDS = ("boot_id", "board", "flags", "rate_hz", "batch", "fw0", "fw1", "fw2", "mp0", "mp1", "mp2",
+                  "reset_cause", "adc_bits", "adc_unit", "adc_vref_mv", "adc_clip_mv",
+                  *(f"{c}_{k}" for c in ("ax", "ay", "az", "yaw", "vbat") for k in ("part", "bw")),
+                  "steer_period_us", "steer_timeout_us", "wheel_ppr", "n_wheels", "wheel_pos",
+                  "link_kind", "link_baud", "link_bps_x100", "uid_len")
+HELLO_C_FIXED = 57
+HELLO_C_BOARDS = ("unknown", "pico", "esp32")
+HELLO_C_FLAG_HARD_TIMER = 1
+HELLO_C_FLAG_SIM = 2
+HELLO_C_RESET_CAUSES = ("unknown", "power_on", "hard", "watchdog", "deepsleep", "soft")
+HELLO_C_PARTS = (None, ("ADXL335", "ratiometric"), ("LISY300AL", "absolute"), ("divider", "absolute"))
+HELLO_C_ADC_UNITS = ("count", "mV")
+HELLO_C_WHEELS = ("fl", "fr", "rl", "rr")
+HELLO_C_LINKS = (None, "usb", "uart", "pipe")
+CHANNEL_NAMES = ("ax", "ay", "az", "yaw", "vbat")
+# keys version 3 added to HELLO; a version 1/2 HELLO reads them as None
+HELLO_V3_KEYS = ("uid", "micropython", "timer", "reset_cause", "link")

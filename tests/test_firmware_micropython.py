@@ -1,12 +1,14 @@
 """The firmware's own tests, run under the real MicroPython unix port."""
 
 import binascii
+import os
+import subprocess
 import zlib
 
 import pytest
 from cobs import cobs
 
-from conftest import MP_TESTS, VECTORS, run_micropython
+from conftest import BOARD, FIRMWARE, MP_TESTS, VECTORS, run_micropython, tool
 
 
 def _assert_passed(proc):
@@ -49,3 +51,25 @@ def test_viper_cobs_and_crc_agree_with_reference_libraries(seed):
         assert wire[-1] == 0 and 0 not in wire[:-1]
         assert wire[:-1] == cobs.encode(raw)
         assert zlib.crc32(raw[:-4]) == int.from_bytes(raw[-4:], "little")
+
+
+def test_pulse_inputs_steer_timeout_and_hall_debounce(stimulus_file):
+    # the steer value must not come back 9-17 min after the receiver is lost (ticks
+    # wrap at 2^30 us), and a hall bounce must not count as a pulse
+    _assert_passed(run_micropython(MP_TESTS / "mp_pulses.py", stimulus=stimulus_file, board=True))
+
+
+def test_escape_sequence_and_safe_boot(stimulus_file, tmp_path):
+    # run in tmp_path: the safe-boot flag file is written to the working directory
+    env = dict(os.environ, MICROPYPATH=f"{BOARD}:{MP_TESTS}:{FIRMWARE}", STID_SIM_STIMULUS=str(stimulus_file))
+    proc = subprocess.run([tool("micropython"), "-X", "heapsize=32M", str(MP_TESTS / "mp_escape.py")],
+                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=60)
+    _assert_passed(proc)
+
+
+def test_escape_through_stdin_poll_without_allocation(stimulus_file):
+    env = dict(os.environ, MICROPYPATH=f"{BOARD}:{MP_TESTS}:{FIRMWARE}", STID_SIM_STIMULUS=str(stimulus_file))
+    proc = subprocess.run([tool("micropython"), "-X", "heapsize=32M", str(MP_TESTS / "mp_escape_live.py")],
+                          input="noise\x03\x03STID-ESC STID-ESCAPE\n", capture_output=True, text=True,
+                          env=env, timeout=60)
+    _assert_passed(proc)

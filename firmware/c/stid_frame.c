@@ -1,10 +1,10 @@
-/* stid wire protocol codec (encodes v2, decodes v1 and v2). See stid_frame.h and firmware/PROTOCOL.md. */
+/* stid wire protocol codec (encodes v3, decodes v1, v2 and v3). See stid_frame.h and firmware/PROTOCOL.md. */
 #include "stid_frame.h"
 
 #include <string.h>
 
 const char *const stid_error_names[STID_ERR_COUNT] = {
-    "cobs", "short", "crc", "version", "type", "length", "too_long"};
+    "cobs", "short", "crc", "version", "version_newer", "type", "length", "hello", "too_long"};
 
 static void put_u16(uint8_t *p, uint16_t v) {
     p[0] = (uint8_t)v;
@@ -91,8 +91,8 @@ size_t stid_encode_frame(uint8_t type, uint32_t seq, uint32_t t_us, const uint8_
 
 size_t stid_record_size(uint8_t version, uint8_t type) {
     if (version == 1u && type == STID_SAMPLES) return STID_SAMPLE_V1_SIZE;
-    if (version == 2u && type == STID_SAMPLES) return STID_SAMPLE_SIZE;
-    if (version == 2u && type == STID_SAMPLES4) return STID_SAMPLE4_SIZE;
+    if (version >= 2u && version <= 3u && type == STID_SAMPLES) return STID_SAMPLE_SIZE;
+    if (version >= 2u && version <= 3u && type == STID_SAMPLES4) return STID_SAMPLE4_SIZE;
     return 0;
 }
 
@@ -151,7 +151,8 @@ static int check_frame(stid_decoder_t *d, stid_frame_t *out) {
     if (stid_crc32(d->frame, (size_t)n - 4) != get_u32(d->frame + n - 4))
         return d->errors[STID_ERR_CRC]++, 0;
     uint8_t version = d->frame[0];
-    if (version < STID_VERSION_MIN || version > STID_VERSION) return d->errors[STID_ERR_VERSION]++, 0;
+    if (version > STID_VERSION) return d->errors[STID_ERR_VERSION_NEWER]++, 0;
+    if (version < STID_VERSION_MIN) return d->errors[STID_ERR_VERSION]++, 0;
     uint8_t type = d->frame[1];
     if (type == STID_SAMPLES || type == STID_SAMPLES4) {
         size_t rs = stid_record_size(version, type);
@@ -159,7 +160,12 @@ static int check_frame(stid_decoder_t *d, stid_frame_t *out) {
         if (body_len < 5 || body_len != 5u + rs * d->frame[STID_HEADER_SIZE + 4])
             return d->errors[STID_ERR_LENGTH]++, 0;
     } else if (type == STID_STATUS) {
-        if (body_len != STID_STATUS_SIZE) return d->errors[STID_ERR_LENGTH]++, 0;
+        if (body_len != (version >= 3u ? STID_STATUS_SIZE : STID_STATUS_V2_SIZE))
+            return d->errors[STID_ERR_LENGTH]++, 0;
+    } else if (type == STID_HELLO_COMPACT && version >= 3u) {
+        const uint8_t *b = d->frame + STID_HEADER_SIZE;
+        if (body_len < STID_HELLO_C_FIXED || body_len != STID_HELLO_C_FIXED + b[STID_HELLO_C_FIXED - 1u])
+            return d->errors[STID_ERR_HELLO]++, 0;
     } else if (type != STID_HELLO) {
         return d->errors[STID_ERR_TYPE]++, 0;
     }

@@ -1,5 +1,5 @@
 /* stid wire protocol codec for C firmware (Arduino, pico-sdk) and tools.
- * Encodes version 2; decodes versions 1 and 2.
+ * Encodes version 3; decodes versions 1, 2 and 3.
  * Spec: firmware/PROTOCOL.md. No allocation, no dependencies beyond libc. */
 #ifndef STID_FRAME_H
 #define STID_FRAME_H
@@ -7,23 +7,26 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define STID_VERSION 2u    /* what the encoder writes */
+#define STID_VERSION 3u    /* what the encoder writes */
 #define STID_VERSION_MIN 1u /* oldest version the decoder reads */
 #define STID_HELLO 1u
 #define STID_SAMPLES 2u
 #define STID_STATUS 3u
 #define STID_SAMPLES4 4u /* version 2: samples with four hall sensors */
+#define STID_HELLO_COMPACT 5u /* version 3: the configuration in a short binary body */
 #define STID_MOD (1ul << 30)
 #define STID_HEADER_SIZE 10u
 #define STID_CRC_SIZE 4u
 #define STID_MAX_FRAME 1024u
 #define STID_MAX_WIRE (STID_MAX_FRAME + STID_MAX_FRAME / 254u + 2u)
-#define STID_SAMPLE_SIZE 26u    /* version 2, SAMPLES */
-#define STID_SAMPLE4_SIZE 44u   /* version 2, SAMPLES4 */
+#define STID_SAMPLE_SIZE 26u    /* versions 2 and 3, SAMPLES */
+#define STID_SAMPLE4_SIZE 44u   /* versions 2 and 3, SAMPLES4 */
 #define STID_SAMPLE_V1_SIZE 22u /* version 1, SAMPLES */
 #define STID_MAX_BATCH 38u      /* SAMPLES records per frame */
 #define STID_MAX_BATCH4 22u     /* SAMPLES4 records per frame */
-#define STID_STATUS_SIZE 28u
+#define STID_STATUS_SIZE 34u    /* version 3 (+ missed u32, late_max_us u16) */
+#define STID_STATUS_V2_SIZE 28u /* versions 1 and 2 */
+#define STID_HELLO_C_FIXED 57u  /* compact HELLO before its uid bytes; byte 56 is uid_len */
 #define STID_MISSING 0xFFFFu
 #define STID_STEER_T_UNKNOWN 0xFFFFFFFFul /* steer_t_us of a version 1 record */
 
@@ -57,8 +60,10 @@ typedef enum {
     STID_ERR_SHORT,
     STID_ERR_CRC,
     STID_ERR_VERSION,
+    STID_ERR_VERSION_NEWER, /* a valid frame of a newer protocol: this decoder is too old */
     STID_ERR_TYPE,
     STID_ERR_LENGTH,
+    STID_ERR_HELLO, /* a compact HELLO whose length does not match its uid_len */
     STID_ERR_TOO_LONG,
     STID_ERR_COUNT
 } stid_error_t;
@@ -83,7 +88,7 @@ size_t stid_encode_frame(uint8_t type, uint32_t seq, uint32_t t_us, const uint8_
 /* Record size of a (version, type), or 0 if that version has no such sample frame. */
 size_t stid_record_size(uint8_t version, uint8_t type);
 
-/* Pack n samples into a version 2 SAMPLES body (type STID_SAMPLES: 5 + 26 n bytes) or
+/* Pack n samples into a version 3 (= version 2) SAMPLES body (type STID_SAMPLES: 5 + 26 n bytes) or
  * SAMPLES4 body (STID_SAMPLES4: 5 + 44 n). Returns the body length, 0 if n is too large. */
 size_t stid_pack_samples(uint8_t type, uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body);
 /* Unpack one record of a (version, type) frame; fields the layout lacks are set to

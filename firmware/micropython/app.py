@@ -2,8 +2,15 @@
 # HELLO and STATUS on schedule. Sampling runs in the timer interrupt; this loop
 # only moves bytes, so a slow or absent host costs overruns (counted), never
 # a late sample.
+#
+# It also keeps the board recoverable and alive: it feeds a watchdog only while
+# the sampler makes progress (an exception in a hard timer callback stops that
+# timer for good on rp2), and it watches its input for the escape line that
+# `stid flash` sends (ESCAPE), after which the board reboots into safe mode so
+# mpremote can reach the REPL (Ctrl-C is disabled while the app runs).
 import json
 import os
+import struct
 import sys
 import time
 
@@ -18,10 +25,21 @@ from pulses import HallCounter, ServoPulse
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = "0.2.0"
+FW_VERSION = (0, 3, 0)
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
+_COMPACT_HELLO_PERIOD_MS = const(1000)
 _STEER_TIMEOUT_US = const(100000)
+_WDT_TIMEOUT_MS = const(2000)  # > the 1 s host stall the ring rides out; rp2 allows <= 8388 ms
+_ESCAPE_POLL_MS = const(100)
+_RING_SECONDS_X4 = const(5)  # the default ring holds 1.25 s: a 1 s host stall plus margin
+ESCAPE = b"STID-ESCAPE"  # on the input: stop, reboot into safe mode (`stid flash`)
+SAFE_BOOT_FILE = "stid_safe_boot"  # main.py: present at boot -> remove it, stay at the REPL
+_BOARD_CODES = {"pico": 1, "esp32": 2}
+_PART_CODES = {"ADXL335": 1, "LISY300AL": 2, "divider": 3}
+_RESET_CODES = {"unknown": 0, "power_on": 1, "hard": 2, "watchdog": 3, "deepsleep": 4, "soft": 5}
+_WHEEL_CODES = {"fl": 0, "fr": 1, "rl": 2, "rr": 3}
+_LINK_CODES = {"usb": 1, "uart": 2, "pipe": 3}
 
 
 def _boot_id():
@@ -29,6 +47,42 @@ def _boot_id():
         return "".join("%02x" % b for b in os.urandom(4))
     except (AttributeError, OSError):
         return "%08x" % (time.ticks_us() & 0xFFFFFFF)
+
+
+def _micropython_version():
+    v = getattr(sys.implementation, "version", (0, 0, 0))
+    return (v[0], v[1], v[2])
+
+
+def bytes_per_sample(record_size, batch):
+    # on the wire: the record, plus header (10), samples head (5), CRC (4), COBS code
+    # and delimiter (2) shared by the batch; HELLO and STATUS add < 1%
+    return record_size + 21 / batch
+
+
+def compact_hello(doc, timer_hard, sim, mp, uid):
+    """The compact binary HELLO body (PROTOCOL.md, HELLO_COMPACT) of a full HELLO doc;
+    mp: MicroPython version tuple, uid: machine.unique_id() bytes."""
+    ch = doc["channels"]
+    parts = []
+    for name in ("ax", "ay", "az", "yaw", "vbat"):
+        c = ch[name]
+        parts.append(0 if c is None else _PART_CODES[c["part"]])
+        parts.append(0 if c is None or c["bandwidth_hz"] is None else c["bandwidth_hz"])
+    wl = doc["wheels"]
+    pos = bytes([_WHEEL_CODES[w["wheel"]] for w in wl] + [0xFF] * (4 - len(wl)))
+    link = doc["link"]
+    clip = doc["adc_clip_v"]
+    body = struct.pack(codec.HELLO_C_FMT, int(doc["boot_id"], 16), _BOARD_CODES.get(doc["board"], 0),
+                       (1 if timer_hard else 0) | (2 if sim else 0), doc["rate_hz"], doc["batch"],
+                       FW_VERSION[0], FW_VERSION[1], FW_VERSION[2], mp[0], mp[1], mp[2],
+                       _RESET_CODES.get(doc["reset_cause"], 0), doc["adc"]["bits"],
+                       0 if doc["adc"]["unit"] == "count" else 1, int(doc["adc"]["vref"] * 1000 + 0.5),
+                       0 if clip is None else int(clip * 1000 + 0.5), *parts,
+                       doc["steer"]["period_us"], doc["steer"]["timeout_us"], wl[0]["pulses_per_rev"],
+                       len(wl), pos, _LINK_CODES[link["kind"]], link["baud"] or 0,
+                       int(link["bytes_per_sample"] * 100 + 0.5), len(uid))
+    return body + uid
 
 
 def _compact_json(doc):
@@ -41,8 +95,11 @@ def _compact_json(doc):
 
 
 class App:
-    def __init__(self, board="pico", rate_hz=500, batch=10, ring_size=256, out=None,
-                 hello_period_s=2, extra_hello=None, wheels=None, wheel_ppr=None):
+    def __init__(self, board="pico", rate_hz=500, batch=10, ring_size=None, out=None,
+                 hello_period_s=10, extra_hello=None, wheels=None, wheel_ppr=None, control=None,
+                 watchdog=True):
+        # ring_size None: 1.25 s of samples (rides out a 1 s host stall)
+        # control: a stream to watch for ESCAPE (None: sys.stdin.buffer on a board)
         # wheels: None (the board's one hall sensor), 4 (its four), or {position: pin}
         profile, readers = boards.open_channels(board)
         wheel_list = boards.wheel_list(profile, wheels)
@@ -53,46 +110,65 @@ class App:
         most = codec.max_batch(self.record_size)
         if not 1 <= batch <= most:
             raise ValueError("batch must be 1..%d samples per frame" % most)
-        if not 10 <= rate_hz <= 5000:
-            raise ValueError("rate_hz must be 10..5000")
+        if not 10 <= rate_hz <= 5000 or 1000000 % rate_hz:
+            raise ValueError("rate_hz must be 10..5000 and divide 1000000 (a whole number of us)")
+        if ring_size is None:
+            ring_size = max(2 * batch, rate_hz * _RING_SECONDS_X4 // 4)
         if ring_size < 2 * batch:
             raise ValueError("ring_size must hold at least two frames")
         self.profile = profile
         self.rate_hz = rate_hz
         self.batch = batch
         self.steer = ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US)
-        self.wheels = [HallCounter(pin) for _, pin in wheel_list]
+        self.wheels = [HallCounter(pin, profile["hall_debounce_us"]) for _, pin in wheel_list]
         self.wheel = self.wheels[0]
         self.ring = SampleRing(ring_size, self.record_size)
-        self.sampler = Sampler(self.ring, readers, self.steer, self.wheels)
+        self.sampler = Sampler(self.ring, readers, self.steer, self.wheels, 1000000 // rate_hz)
         self.enc = codec.FrameEncoder()
-        self.out = out if out is not None else sys.stdout.buffer
+        link = boards.open_link(profile)
+        if out is None:
+            out = sys.stdout.buffer
+        self.out = out
         self._write = self.out.write
+        link["bytes_per_sample"] = round(bytes_per_sample(self.record_size, batch), 2)
         wl = [{"pin": pin, "pulses_per_rev": ppr, "wheel": pos} for pos, pin in wheel_list]
-        doc = {
-            "proto": codec.VERSION, "fw": FW_VERSION, "board": board, "boot_id": _boot_id(),
+        mp = _micropython_version()
+        self.hello = {
+            "proto": codec.VERSION, "fw": "%d.%d.%d" % FW_VERSION, "board": board, "boot_id": _boot_id(),
             "rate_hz": rate_hz, "batch": batch, "mod": _MASK30 + 1,
             "adc": profile["adc"], "adc_clip_v": profile["adc_clip_v"],
             "channels": boards.channel_map(profile),
             "steer": {"pin": profile["steer_pin"], "period_us": 20000, "timeout_us": _STEER_TIMEOUT_US},
-            "wheel": wl[0], "wheels": wl,
+            "wheels": wl,  # version 3 drops `wheel` (= wheels[0]): the host restores it
+            "uid": boards.unique_id_hex(), "micropython": "%d.%d.%d" % mp,
+            "timer": None, "reset_cause": boards.reset_cause(), "link": link,
         }
         if extra_hello:
-            doc.update(extra_hello)
-        self.hello_doc = _compact_json(doc).encode()  # built once: sending it allocates nothing
-        if len(self.hello_doc) > codec.MAX_FRAME - 14:
-            raise ValueError("HELLO document too long for one frame")
+            self.hello.update(extra_hello)
+        self.hello_doc = b""  # built at start(), once the timer mode is known
+        self.hello_compact = b""
         self.hello_period_ms = hello_period_s * 1000
         self.frames = 0
         self.tx_short = 0
         self._timer = None
         self._t_status = 0
         self._t_hello = 0
+        self._t_compact = 0
+        self._watchdog = watchdog
+        self._wdt = None
+        self._fed_runs = 0
+        self._control = control
+        self._poll = None
+        self._esc_buf = bytearray(1)
+        self._esc_i = 0
+        self._t_escape = 0
+        self.escaped = False
 
     # -- output -------------------------------------------------------------
     def _send(self, n):
         # A USB-CDC port whose host stopped reading accepts part of a write after
         # ~500 ms; the partial frame is caught by the receiver's CRC. Count it.
+        self.sampler.t_free = time.ticks_us()  # the scheduler queue is empty now
         w = self._write(self.enc.wire, n)
         if w is not None and w < n:
             self.tx_short += 1
@@ -101,13 +177,17 @@ class App:
     def send_hello(self):
         self._send(self.enc.hello(time.ticks_us(), self.hello_doc))
 
+    def send_hello_compact(self):
+        self._send(self.enc.hello(time.ticks_us(), self.hello_compact, codec.HELLO_COMPACT))
+
     def send_status(self):
         s = self.sampler
         r = self.ring
         self._send(self.enc.status(time.ticks_us(), time.ticks_ms(), s.index, r.overruns,
                                    self.frames, self.tx_short, s.isr_max_us, s.isr_last_us,
-                                   r.peak, r.size))
+                                   r.peak, r.size, s.missed, s.late_max_us))
         s.isr_max_us = 0
+        s.late_max_us = 0
         r.peak = 0
 
     def pump(self, flush=False):
@@ -127,21 +207,88 @@ class App:
         if time.ticks_diff(now, self._t_status) >= _STATUS_PERIOD_MS:
             self._t_status = now
             self.send_status()
+        if time.ticks_diff(now, self._t_compact) >= _COMPACT_HELLO_PERIOD_MS:
+            self._t_compact = now
+            self.send_hello_compact()
         if time.ticks_diff(now, self._t_hello) >= self.hello_period_ms:
             self._t_hello = now
             self.send_hello()
+        self.feed_watchdog()
+        if self._poll is not None and time.ticks_diff(now, self._t_escape) >= _ESCAPE_POLL_MS:
+            self._t_escape = now
+            self.check_escape()
+
+    def feed_watchdog(self):
+        # Fed only while the sampler takes samples: a dead timer (an exception in its
+        # callback) resets the board instead of streaming STATUS without samples.
+        runs = self.sampler.runs
+        if self._wdt is not None and runs != self._fed_runs:
+            self._fed_runs = runs
+            self._wdt.feed()
+
+    def check_escape(self):
+        # Bytes on the input, matched against ESCAPE one at a time (no allocation).
+        buf = self._esc_buf
+        while self._poll_ready():
+            if self._control.readinto(buf) != 1:
+                self._poll = None  # end of input (a closed pipe): nothing more to watch
+                return
+            if buf[0] == ESCAPE[self._esc_i]:
+                self._esc_i += 1
+                if self._esc_i == len(ESCAPE):
+                    self.escaped = True
+                    return
+            else:
+                self._esc_i = 1 if buf[0] == ESCAPE[0] else 0
+
+    def _poll_ready(self):
+        for _ in self._poll.ipoll(0):
+            return True
+        return False
 
     # -- life cycle ---------------------------------------------------------
     def start(self):
         self._write(b"\x00")  # cleanly delimit the first frame from any boot text
-        self._t_status = self._t_hello = time.ticks_ms()
-        self.send_hello()
         self._timer = Timer(self.profile["timer_id"])
+        hard = self.profile["hard_timer"]
+        self.sampler.arm(time.ticks_us())
         try:
-            self._timer.init(mode=Timer.PERIODIC, freq=self.rate_hz, callback=self.sampler.isr,
-                             hard=self.profile["hard_timer"])
-        except TypeError:  # ports whose timers take no `hard` (ESP32: always scheduled)
+            self._timer.init(mode=Timer.PERIODIC, freq=self.rate_hz, callback=self.sampler.isr, hard=hard)
+        except (TypeError, ValueError):
+            # rp2 before MicroPython 1.26 has no `hard` (TypeError); ESP32 refuses
+            # hard=True (ValueError): a scheduled timer, and HELLO says so
+            hard = False
+            self.sampler.arm(time.ticks_us())
             self._timer.init(mode=Timer.PERIODIC, freq=self.rate_hz, callback=self.sampler.isr)
+        self.hello["timer"] = "hard" if hard else "soft"
+        sim = bool(self.hello.get("sim"))
+        self.hello_doc = _compact_json(self.hello).encode()  # built once: sending it allocates nothing
+        if len(self.hello_doc) > codec.MAX_FRAME - 14:
+            raise ValueError("HELLO document too long for one frame")
+        self.hello_compact = compact_hello(self.hello, hard, sim, _micropython_version(), boards.unique_id())
+        self._t_status = self._t_hello = self._t_compact = self._t_escape = time.ticks_ms()
+        self.send_hello()
+        self.send_hello_compact()
+        if self._watchdog:
+            try:
+                self._wdt = machine.WDT(timeout=_WDT_TIMEOUT_MS)
+            except (AttributeError, ValueError):
+                self._wdt = None
+        self._open_control()
+
+    def _open_control(self):
+        ctl = self._control
+        if ctl is None:
+            return
+        try:
+            import select
+            self._poll = select.poll()
+            self._poll.register(ctl, select.POLLIN)
+            # ipoll allocates its result tuple on the first call (extmod/modselect.c,
+            # poll_ipoll): make that call now, so the main loop's never allocates
+            self._poll_ready()
+        except (ImportError, AttributeError, OSError):
+            self._poll = None
 
     def stop(self):
         if self._timer is not None:
@@ -153,21 +300,54 @@ class App:
     def run(self, should_stop=None):
         self.start()
         try:
-            while should_stop is None or not should_stop():
+            while not self.escaped and (should_stop is None or not should_stop()):
                 self.pump()
                 self.service()
+                self.sampler.t_free = time.ticks_us()  # running bytecode: the queue is empty
                 machine.idle()
         finally:
             self.stop()
 
 
+def safe_boot_requested(profile):
+    """main.py asks before starting: the escape file, or the safe pin held low."""
+    try:
+        os.remove(SAFE_BOOT_FILE)
+        return "escape"
+    except OSError:
+        pass
+    pin = profile.get("safe_pin")
+    if pin is not None and machine.Pin(pin, machine.Pin.IN, machine.Pin.PULL_UP).value() == 0:
+        return "pin"
+    return None
+
+
+def _reboot_to_safe_mode():
+    # The watchdog cannot be stopped once started (rp2, ESP32): a reset clears it,
+    # and the file tells main.py not to start the app on the way up.
+    with open(SAFE_BOOT_FILE, "w") as f:
+        f.write("1")
+    machine.reset()
+
+
+def default_board():
+    return {"rp2": "pico", "esp32": "esp32"}.get(sys.platform, "pico")
+
+
 def main(board=None, **kw):
+    if board is None:
+        board = default_board()
     try:
         micropython.kbd_intr(-1)  # a 0x03 byte from the host must not be Ctrl-C
     except AttributeError:
         pass
     if hasattr(micropython, "alloc_emergency_exception_buf"):
         micropython.alloc_emergency_exception_buf(100)
-    if board is None:
-        board = {"rp2": "pico", "esp32": "esp32"}.get(sys.platform, "pico")
-    App(board=board, **kw).run()
+    app = App(board=board, control=sys.stdin.buffer, **kw)
+    try:
+        app.run()
+    finally:
+        if hasattr(micropython, "kbd_intr"):
+            micropython.kbd_intr(3)  # Ctrl-C works again at the REPL
+    if app.escaped:
+        _reboot_to_safe_mode()

@@ -19,6 +19,16 @@
 # Analog bandwidth, declared in HELLO: the ADXL335's output filter is its internal
 # 32 kOhm with the board's output capacitor, f = 5 uF / C (`accel_cap_nf` = 100 nF =
 # 0.1 uF -> 50 Hz); the LISY300AL filters internally at 88 Hz.
+#
+# Link: the Pico streams over USB-CDC (~7-9 Mbit/s). The ESP32 DevKit's console is
+# UART 0 behind a USB bridge at 115200 baud, which carries only ~390 Hz of samples:
+# the firmware sets it to `baud` (921600; CP210x/CH340 bridges take it). The REPL
+# shares that UART, so a board running the app talks at 921600 until it resets.
+# `hall_debounce_us`: hall edges closer than this to the previous one are contact
+# bounce or noise (a wheel at 30 m/s with one magnet gives one edge per ~10 ms).
+# `safe_pin`: held low at reset, the app does not start (main.py): the escape that
+# needs no tools.
+import machine
 from machine import ADC, Pin
 
 PROFILES = {
@@ -33,6 +43,9 @@ PROFILES = {
         "accel_cap_nf": 100,
         "timer_id": -1,
         "hard_timer": True,
+        "link": {"kind": "usb", "baud": None},
+        "hall_debounce_us": 200,
+        "safe_pin": 22,
     },
     "esp32": {
         "adc": {"bits": 12, "vref": 3.3, "unit": "mV"},
@@ -45,6 +58,9 @@ PROFILES = {
         "accel_cap_nf": 100,
         "timer_id": 0,
         "hard_timer": False,
+        "link": {"kind": "uart", "baud": 921600, "uart": 0},
+        "hall_debounce_us": 200,
+        "safe_pin": 0,  # the DevKit's BOOT button, read after reset
     },
 }
 
@@ -128,3 +144,40 @@ def wheel_list(profile, wheel_pins=None):
     if len(out) not in (1, 4):
         raise ValueError("one or four hall sensors are supported, not %d" % len(out))
     return out
+
+
+def open_link(profile):
+    """Set the board's output link up; return HELLO's `link` {kind, baud} (no bytes_per_sample)."""
+    link = profile["link"]
+    if link["kind"] == "uart":
+        # the console UART: stdout goes through it, so only its baud rate changes
+        machine.UART(link["uart"], baudrate=link["baud"])
+    return {"kind": link["kind"], "baud": link["baud"]}
+
+
+RESET_CAUSES = (("PWRON_RESET", "power_on"), ("HARD_RESET", "hard"), ("WDT_RESET", "watchdog"),
+                ("DEEPSLEEP_RESET", "deepsleep"), ("SOFT_RESET", "soft"))
+
+
+def reset_cause():
+    """Why the chip last reset, by name (the ports number their causes differently)."""
+    try:
+        code = machine.reset_cause()
+    except AttributeError:
+        return "unknown"
+    for const_name, name in RESET_CAUSES:
+        if getattr(machine, const_name, None) == code:
+            return name
+    return "unknown"
+
+
+def unique_id():
+    try:
+        return bytes(machine.unique_id())
+    except AttributeError:
+        return b""
+
+
+def unique_id_hex():
+    uid = unique_id()
+    return "".join("%02x" % b for b in uid) if uid else None

@@ -8,24 +8,27 @@ import micropython
 import struct
 from micropython import const
 
-VERSION = const(2)
+VERSION = const(3)
 HELLO = const(1)
 SAMPLES = const(2)  # records of SAMPLE_SIZE: one hall sensor
 STATUS = const(3)
 SAMPLES4 = const(4)  # records of SAMPLE4_SIZE: four hall sensors
+HELLO_COMPACT = const(5)  # the configuration in ~65 bytes, for lossy links
 MASK30 = const(0x3FFFFFFF)
 HEADER_SIZE = const(10)
 SAMPLES_HEAD = const(5)
 SAMPLE_SIZE = const(26)
 SAMPLE4_SIZE = const(44)
-STATUS_SIZE = const(28)
+STATUS_SIZE = const(34)
 MAX_FRAME = const(1024)
 MAX_WIRE = const(1030)  # COBS worst case for 1024 bytes + delimiter
 # t_us ax ay az yaw steer_us wheel_count wheel_t_us vbat steer_t_us
 SAMPLE_FMT = "<IHHHHHHIHI"
 # appended in SAMPLES4 records: (count, t_us) of wheels 1, 2, 3
 WHEELS3_FMT = "<HIHIHI"
-STATUS_FMT = "<IIIIIHHHH"
+STATUS_FMT = "<IIIIIHHHHIH"
+# compact HELLO (PROTOCOL.md): fixed part, then uid_len bytes of machine.unique_id()
+HELLO_C_FMT = "<IBBHB3B3BBBBHH" + "BH" * 5 + "HIBB4sBIHB"
 
 
 def _make_crc_table():
@@ -118,17 +121,19 @@ class FrameEncoder:
         self.seq = (self.seq + 1) & MASK30
         return cobs_encode(self.raw, n + 4, self.wire)
 
-    def hello(self, t_us, doc_bytes):
-        self.header(HELLO, t_us)
+    def hello(self, t_us, doc_bytes, ftype=HELLO):
+        # doc_bytes: the JSON document (HELLO) or the packed compact body (HELLO_COMPACT)
+        self.header(ftype, t_us)
         copy_bytes(self.raw, HEADER_SIZE, doc_bytes, 0, len(doc_bytes))
         return self.finish(len(doc_bytes))
 
     def status(self, t_us, uptime_ms, samples, overruns, frames, tx_short,
-               isr_max_us, isr_last_us, ring_peak, ring_size):
+               isr_max_us, isr_last_us, ring_peak, ring_size, missed, late_max_us):
         self.header(STATUS, t_us)
         struct.pack_into(STATUS_FMT, self.raw, HEADER_SIZE, uptime_ms & MASK30, samples & MASK30,
                          overruns & MASK30, frames & MASK30, tx_short & MASK30,
-                         min(isr_max_us, 0xFFFF), min(isr_last_us, 0xFFFF), ring_peak, ring_size)
+                         min(isr_max_us, 0xFFFF), min(isr_last_us, 0xFFFF), ring_peak, ring_size,
+                         missed & MASK30, min(late_max_us, 0xFFFF))
         return self.finish(STATUS_SIZE)
 
     def samples_begin(self, t_us, index, n, ftype=SAMPLES):

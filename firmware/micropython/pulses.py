@@ -27,6 +27,7 @@ class ServoPulse:
         self.width = 0
         self.t_fall = 0
         self.t_read = 0  # falling edge of the pulse the last read() returned
+        self._stale = 0  # t_fall of a pulse found older than the timeout: 0 until a new edge
         self._t_rise = 0
         self._high = False
         _irq(self.pin, self._edge, Pin.IRQ_RISING | Pin.IRQ_FALLING)
@@ -55,20 +56,35 @@ class ServoPulse:
             tf = self.t_fall
             w = self.width
         self.t_read = tf
+        # ticks_diff is only meaningful within 2^29 us (~9 min): a pulse judged by its
+        # age alone would come back as valid 9-17 min after the receiver was lost. The
+        # sampler reads every period, so the pulse is marked stale the first time it
+        # is over the timeout and stays stale until a new falling edge.
+        if tf == self._stale or w == 0:
+            return 0
         if time.ticks_diff(now, tf) > self.timeout_us:
+            self._stale = tf
             return 0
         return w
 
 
 class HallCounter:
-    """Hall wheel-speed sensor: pulse count and the time of the latest pulse."""
+    """Hall wheel-speed sensor: pulse count and the time of the latest pulse. An
+    edge within `debounce_us` of the previous one is bounce or noise: ignored, so
+    it neither adds a pulse nor moves the edge time."""
 
-    def __init__(self, pin_no):
+    def __init__(self, pin_no, debounce_us=0):
         self.pin = Pin(pin_no, Pin.IN, Pin.PULL_UP)
         self.count = 0
         self.t_last = 0
+        self.debounce_us = debounce_us
+        self.bounces = 0
         _irq(self.pin, self._edge, Pin.IRQ_FALLING)
 
     def _edge(self, pin):
-        self.t_last = time.ticks_us() & _MASK30
+        t = time.ticks_us() & _MASK30
+        if self.count and time.ticks_diff(t, self.t_last) < self.debounce_us:
+            self.bounces += 1
+            return
+        self.t_last = t
         self.count = (self.count + 1) & 0xFFFF

@@ -1,6 +1,17 @@
 # The timer-driven sampler: one interrupt per sample reads every channel into
 # the ring buffer. It is the hot path: no allocation, no floats, no formatting.
 # Each record is packed straight into its ring slot (struct.pack_into).
+#
+# Every timer period gets an index. Where the timer is soft (ESP32; rp2 before
+# MicroPython 1.26) the callback is only scheduled: it runs late when the main
+# loop is inside a blocking write, and a tick that finds the 8-deep scheduler
+# queue full is lost. Queued calls run in tick order, so each call belongs to the
+# oldest tick not yet served -- unless that tick fired before `t_free`, the last
+# moment the main loop ran bytecode (set just before each write): scheduled
+# callbacks run at every bytecode boundary, so a tick that old was lost, not
+# queued. Lost ticks advance the index and are counted in `missed`: the host sees
+# a gap, never a stretched clock. `late_max_us` is how far behind its tick's
+# nominal instant (start + index * period) a sample was taken.
 import struct
 import time
 from micropython import const
@@ -8,10 +19,11 @@ from micropython import const
 from codec import SAMPLE_FMT, SAMPLE_SIZE, WHEELS3_FMT
 
 _MASK30 = const(0x3FFFFFFF)
+_FREE_MARGIN_US = const(200)  # a tick this close before t_free may still be queued
 
 
 class Sampler:
-    def __init__(self, ring, readers, steer, wheels):
+    def __init__(self, ring, readers, steer, wheels, period_us):
         # wheels: one or four HallCounter objects, in record order
         self.ring = ring
         self._ax, self._ay, self._az, self._yaw, self._vbat = readers
@@ -21,12 +33,36 @@ class Sampler:
         self._w1 = self._w2 = self._w3 = None
         if self._four:
             self._w1, self._w2, self._w3 = wheels[1], wheels[2], wheels[3]
-        self.index = 0  # samples taken since boot, mod 2^30 (dropped ones included)
+        self.period_us = period_us
+        self.index = 0  # timer periods since start, mod 2^30 (dropped and missed ones included)
+        self.runs = 0  # calls that took a sample: the watchdog is fed only while this moves
+        self.missed = 0  # periods in which no call came (soft timer queue full or late)
+        self.late_max_us = 0
+        self._t_next = -1  # ticks of the nominal instant of `index`; -1 before the first call
+        self.t_free = 0  # ticks when the main loop last ran bytecode before a blocking write
         self.isr_last_us = 0
         self.isr_max_us = 0
 
+    def arm(self, t_start):
+        # The timer was started at t_start: its first tick is due one period later.
+        self._t_next = (t_start + self.period_us) & _MASK30
+
     def isr(self, _timer):
         t = time.ticks_us() & _MASK30
+        if self._t_next < 0:
+            self._t_next = t
+        old = time.ticks_diff(self.t_free, self._t_next) - _FREE_MARGIN_US
+        if old >= 0 and time.ticks_diff(t, self.t_free) >= 0:  # ticks up to t_free were lost
+            k = old // self.period_us + 1
+            self.index = (self.index + k) & _MASK30
+            self.missed += k
+            self._t_next = (self._t_next + k * self.period_us) & _MASK30
+        late = time.ticks_diff(t, self._t_next)
+        if late < 0:  # the timer runs a little fast against our grid: follow it
+            self._t_next = t
+            late = 0
+        if late > self.late_max_us:
+            self.late_max_us = late
         ring = self.ring
         off = ring.claim(self.index)
         if off >= 0:
@@ -44,6 +80,8 @@ class Sampler:
                                  b.count, b.t_last, c.count, c.t_last)
             ring.commit()
         self.index = (self.index + 1) & _MASK30
+        self._t_next = (self._t_next + self.period_us) & _MASK30
+        self.runs = (self.runs + 1) & _MASK30
         d = time.ticks_diff(time.ticks_us(), t)
         self.isr_last_us = d
         if d > self.isr_max_us:

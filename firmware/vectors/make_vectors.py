@@ -9,8 +9,8 @@ decoders cannot leak into the reference they are tested against.
 ``vectors.json`` is read by the Python and MicroPython tests; ``vectors.txt`` is
 the same content in a line format the C test reads without a JSON parser.
 
-Every case names the protocol version its frames carry. Version 2 is what the
-firmware sends; the version 1 cases stay so that every decoder keeps reading
+Every case names the protocol version its frames carry. Version 3 is what the
+firmware sends; the version 1 and 2 cases stay so that every decoder keeps reading
 old streams and logs (PROTOCOL.md, "Versions").
 """
 
@@ -23,17 +23,19 @@ from cobs import cobs
 
 HERE = Path(__file__).resolve().parent
 MOD = 1 << 30
-VERSION = 2
-HELLO, SAMPLES, STATUS, SAMPLES4 = 1, 2, 3, 4
+VERSION = 3
+HELLO, SAMPLES, STATUS, SAMPLES4, HELLO_COMPACT = 1, 2, 3, 4, 5
 SAMPLE_FIELDS_V1 = ("t_us", "ax", "ay", "az", "yaw", "steer_us", "wheel_count", "wheel_t_us", "vbat")
 SAMPLE_FMT_V1 = "<IHHHHHHIH"
 SAMPLE_FIELDS = SAMPLE_FIELDS_V1 + ("steer_t_us",)  # version 2, SAMPLES: 26 bytes
 SAMPLE_FMT = SAMPLE_FMT_V1 + "I"
 WHEELS3_FIELDS = ("wheel1_count", "wheel1_t_us", "wheel2_count", "wheel2_t_us", "wheel3_count", "wheel3_t_us")
 WHEELS3_FMT = "<HIHIHI"  # appended in version 2 SAMPLES4 records: 44 bytes
-STATUS_FIELDS = ("uptime_ms", "samples", "overruns", "frames", "tx_short",
-                 "isr_max_us", "isr_last_us", "ring_peak", "ring_size")
-STATUS_FMT = "<IIIIIHHHH"
+STATUS_FIELDS_V2 = ("uptime_ms", "samples", "overruns", "frames", "tx_short",
+                    "isr_max_us", "isr_last_us", "ring_peak", "ring_size")
+STATUS_FMT_V2 = "<IIIIIHHHH"
+STATUS_FIELDS = STATUS_FIELDS_V2 + ("missed", "late_max_us")  # version 3: 34 bytes
+STATUS_FMT = STATUS_FMT_V2 + "IH"
 
 
 def frame_bytes(ftype, seq, t_us, body, version=VERSION):
@@ -57,8 +59,27 @@ def samples_body(index, samples, version=VERSION, four=False):
     return body
 
 
-def status_body(st):
+def status_body(st, version=VERSION):
+    if version < 3:
+        return struct.pack(STATUS_FMT_V2, *(st[k] for k in STATUS_FIELDS_V2))
     return struct.pack(STATUS_FMT, *(st[k] for k in STATUS_FIELDS))
+
+
+def compact_hello_body(uid):
+    """The compact HELLO of HELLO_DOC3, packed field by field from PROTOCOL.md's table."""
+    body = struct.pack("<I", 0x9F3A51C2)  # boot_id
+    body += bytes([1, 1])  # board pico; flags: bit 0 hard timer, bit 1 simulated (no)
+    body += struct.pack("<HB", 500, 10)  # rate_hz, batch
+    body += bytes([0, 3, 0, 1, 26, 0])  # fw 0.3.0, MicroPython 1.26.0
+    body += bytes([3, 12, 0])  # reset cause watchdog, adc bits 12, unit count
+    body += struct.pack("<HH", 3300, 0)  # vref mV, clip mV (0: none)
+    for part, bw in ((1, 50), (1, 50), (0, 0), (2, 88), (0, 0)):  # ax ay az yaw vbat
+        body += struct.pack("<BH", part, bw)
+    body += struct.pack("<HI", 20000, 100000)  # steer period, timeout
+    body += bytes([1, 4, 0, 1, 2, 3])  # ppr, four wheels: fl fr rl rr
+    body += struct.pack("<BIH", 1, 0, 2810)  # link usb, no baud, 28.10 bytes per sample
+    body += bytes([len(uid)]) + uid
+    return body
 
 
 def sample(i, t0=1000, dt=2000, version=VERSION, four=False):
@@ -105,6 +126,19 @@ HELLO_DOC = {
     "steer": {"pin": 2, "period_us": 20000, "timeout_us": 100000},
     "wheel": _WHEELS4[0], "wheels": _WHEELS4,
 }
+HELLO_DOC3 = dict({k: v for k, v in HELLO_DOC.items() if k != "wheel"}, proto=3, fw="0.3.0",
+                  uid="e66038b7133a2b2f", micropython="1.26.0", timer="hard", reset_cause="watchdog",
+                  link={"kind": "usb", "baud": None, "bytes_per_sample": 28.1})  # `wheel` dropped in 3
+# what a receiver makes of the compact form: HELLO_DOC3 without the pins
+HELLO_COMPACT_DECODED = {
+    **{k: v for k, v in HELLO_DOC3.items() if k not in ("channels", "steer", "wheels")},
+    "channels": {k: (None if v is None else {kk: vv for kk, vv in v.items() if kk != "pin"})
+                 for k, v in HELLO_DOC["channels"].items()},
+    "steer": {"period_us": 20000, "timeout_us": 100000},
+    "wheel": {"pulses_per_rev": 1, "wheel": "fl"},
+    "wheels": [{"pulses_per_rev": 1, "wheel": w} for w in ("fl", "fr", "rl", "rr")],
+    "sim": False,
+}
 
 
 def frame_entry(ftype, seq, t_us, body, decoded):
@@ -120,41 +154,52 @@ def build_cases():
         cases.append({"name": name, "version": version, "note": note, "wire": stream.hex(), "frames": entries,
                       "errors": {}, "encode": True})
 
-    hello_body = json.dumps(HELLO_DOC, separators=(",", ":")).encode()
-    ok("hello", [frame_entry(HELLO, 0, 12345, hello_body, HELLO_DOC)], "four wheels, channel bandwidths")
-
-    s1 = [sample(0)]
-    ok("samples_1", [frame_entry(SAMPLES, 1, 2100, samples_body(0, s1), {"index": 0, "samples": s1})])
-
-    s10 = [sample(i) for i in range(10)]
-    ok("samples_10", [frame_entry(SAMPLES, 2, 21000, samples_body(10, s10), {"index": 10, "samples": s10})])
-
-    # Values just below the 2^30 wrap, and zero bytes everywhere COBS must stuff them.
-    sw = [{"t_us": MOD - 1, "ax": 0, "ay": 0xFFFF, "az": 0x0100, "yaw": 0x00FF, "steer_us": 0,
-           "wheel_count": 0, "wheel_t_us": MOD - 2, "vbat": 0, "steer_t_us": 0}]
-    ok("samples_wrap_zeros", [frame_entry(SAMPLES, MOD - 1, MOD - 1, samples_body(MOD - 1, sw),
-                                          {"index": MOD - 1, "samples": sw})],
-       "counters at 2^30 - 1 and many zero bytes")
-
     st = {"uptime_ms": 61000, "samples": 30500, "overruns": 3, "frames": 3111, "tx_short": 1,
           "isr_max_us": 95, "isr_last_us": 41, "ring_peak": 37, "ring_size": 256}
-    ok("status", [frame_entry(STATUS, 7, 99000, status_body(st), st)])
-
-    # Longest legal SAMPLES frame: 38 samples, 1007 bytes.
-    s38 = [sample(i, t0=5, dt=1000) for i in range(38)]
-    ok("samples_38", [frame_entry(SAMPLES, 8, 42000, samples_body(400, s38), {"index": 400, "samples": s38})],
-       "longest legal SAMPLES frame (1007 bytes)")
-
+    st3 = dict(st, missed=17, late_max_us=4321)
+    sw = [{"t_us": MOD - 1, "ax": 0, "ay": 0xFFFF, "az": 0x0100, "yaw": 0x00FF, "steer_us": 0,
+           "wheel_count": 0, "wheel_t_us": MOD - 2, "vbat": 0, "steer_t_us": 0}]
+    s1 = [sample(0)]
+    s10 = [sample(i) for i in range(10)]
     s4 = [sample(i, four=True) for i in range(3)]
-    ok("samples4_3", [frame_entry(SAMPLES4, 9, 43000, samples_body(500, s4, four=True),
-                                  {"index": 500, "samples": s4})], "four hall sensors")
-    s4w = [dict(sw[0], wheel1_count=0, wheel1_t_us=MOD - 1, wheel2_count=0xFFFF, wheel2_t_us=0,
-                wheel3_count=0x0100, wheel3_t_us=0x00FF0000)]
-    ok("samples4_wrap_zeros", [frame_entry(SAMPLES4, 10, 5, samples_body(MOD - 1, s4w, four=True),
-                                           {"index": MOD - 1, "samples": s4w})], "four wheels, zero bytes")
-    s22 = [sample(i, t0=5, dt=1000, four=True) for i in range(22)]
-    ok("samples4_22", [frame_entry(SAMPLES4, 11, 44000, samples_body(600, s22, four=True),
-                                   {"index": 600, "samples": s22})], "longest legal SAMPLES4 frame")
+
+    # Version 3 (sent today) and version 2 (old firmware, old logs): the same record
+    # layouts; version 3 lengthens STATUS and adds the compact HELLO.
+    for v in (3, 2):
+        pre = "" if v == VERSION else f"v{v}_"
+        doc = HELLO_DOC3 if v == 3 else HELLO_DOC
+        hello_body = json.dumps(doc, separators=(",", ":")).encode()
+        ok(pre + "hello", [frame_entry(HELLO, 0, 12345, hello_body, doc)], "four wheels, channel bandwidths",
+           version=v)
+        ok(pre + "samples_1", [frame_entry(SAMPLES, 1, 2100, samples_body(0, s1), {"index": 0, "samples": s1})],
+           version=v)
+        ok(pre + "samples_10", [frame_entry(SAMPLES, 2, 21000, samples_body(10, s10),
+                                            {"index": 10, "samples": s10})], version=v)
+        # Values just below the 2^30 wrap, and zero bytes everywhere COBS must stuff them.
+        ok(pre + "samples_wrap_zeros", [frame_entry(SAMPLES, MOD - 1, MOD - 1, samples_body(MOD - 1, sw),
+                                                    {"index": MOD - 1, "samples": sw})],
+           "counters at 2^30 - 1 and many zero bytes", version=v)
+        stv = st3 if v == 3 else st
+        ok(pre + "status", [frame_entry(STATUS, 7, 99000, status_body(stv, v), stv)], version=v)
+        # Longest legal SAMPLES frame: 38 samples, 1007 bytes.
+        s38 = [sample(i, t0=5, dt=1000) for i in range(38)]
+        ok(pre + "samples_38", [frame_entry(SAMPLES, 8, 42000, samples_body(400, s38),
+                                            {"index": 400, "samples": s38})],
+           "longest legal SAMPLES frame (1007 bytes)", version=v)
+        ok(pre + "samples4_3", [frame_entry(SAMPLES4, 9, 43000, samples_body(500, s4, four=True),
+                                            {"index": 500, "samples": s4})], "four hall sensors", version=v)
+        s4w = [dict(sw[0], wheel1_count=0, wheel1_t_us=MOD - 1, wheel2_count=0xFFFF, wheel2_t_us=0,
+                    wheel3_count=0x0100, wheel3_t_us=0x00FF0000)]
+        ok(pre + "samples4_wrap_zeros", [frame_entry(SAMPLES4, 10, 5, samples_body(MOD - 1, s4w, four=True),
+                                                     {"index": MOD - 1, "samples": s4w})],
+           "four wheels, zero bytes", version=v)
+        s22 = [sample(i, t0=5, dt=1000, four=True) for i in range(22)]
+        ok(pre + "samples4_22", [frame_entry(SAMPLES4, 11, 44000, samples_body(600, s22, four=True),
+                                             {"index": 600, "samples": s22})], "longest legal SAMPLES4 frame",
+           version=v)
+    uid = bytes.fromhex("e66038b7133a2b2f")
+    ok("hello_compact", [frame_entry(HELLO_COMPACT, 12, 777, compact_hello_body(uid), HELLO_COMPACT_DECODED)],
+       "the compact binary HELLO (65-byte body, 79-byte frame)")
 
     # Version 1 frames: every receiver still decodes them (old firmware, old logs).
     hello1 = json.dumps(HELLO_DOC_V1, separators=(",", ":")).encode()
@@ -165,10 +210,10 @@ def build_cases():
     v40 = [sample(i, t0=5, dt=1000, version=1) for i in range(40)]
     ok("v1_samples_40", [frame_entry(SAMPLES, 8, 42000, samples_body(400, v40, version=1),
                                      {"index": 400, "samples": v40})], "protocol 1 longest frame", version=1)
-    ok("v1_status", [frame_entry(STATUS, 7, 99000, status_body(st), st)], "protocol 1 STATUS", version=1)
+    ok("v1_status", [frame_entry(STATUS, 7, 99000, status_body(st, 1), st)], "protocol 1 STATUS", version=1)
 
     good_a = frame_entry(SAMPLES, 20, 5000, samples_body(100, s1), {"index": 100, "samples": s1})
-    good_b = frame_entry(STATUS, 21, 6000, status_body(st), st)
+    good_b = frame_entry(STATUS, 21, 6000, status_body(st3), st3)
     wa = wire(frame_bytes(SAMPLES, 20, 5000, bytes.fromhex(good_a["body"])))
     wb = wire(frame_bytes(STATUS, 21, 6000, bytes.fromhex(good_b["body"])))
 
@@ -192,12 +237,19 @@ def build_cases():
            "the first half of a frame runs into the next frame: one corrupt chunk, both lost")
     broken("truncated_then_delim", wa[:len(wa) // 2] + b"\x00" + wb, [good_b], {"cobs": 1},
            "a frame cut short and followed by a delimiter: the next frame survives")
-    broken("bad_version", wire(frame_bytes(STATUS, 21, 6000, status_body(st), version=3)) + wa, [good_a],
-           {"version": 1}, "unknown protocol version (3)")
-    broken("bad_version_0", wire(frame_bytes(STATUS, 21, 6000, status_body(st), version=0)) + wa, [good_a],
+    broken("version_newer", wire(frame_bytes(STATUS, 21, 6000, status_body(st3), version=4)) + wa, [good_a],
+           {"version_newer": 1}, "a valid frame of a newer protocol (4): the log needs a newer stid")
+    broken("bad_version_0", wire(frame_bytes(STATUS, 21, 6000, status_body(st3), version=0)) + wa, [good_a],
            {"version": 1}, "unknown protocol version (0)")
-    broken("bad_type", wire(frame_bytes(9, 21, 6000, status_body(st))) + wa, [good_a], {"type": 1},
+    broken("bad_type", wire(frame_bytes(9, 21, 6000, status_body(st3))) + wa, [good_a], {"type": 1},
            "unknown frame type")
+    broken("v2_status_length_in_v3", wire(frame_bytes(STATUS, 21, 6000, status_body(st, 2))) + wa, [good_a],
+           {"length": 1}, "a 28-byte STATUS under version 3 (34 expected)")
+    broken("v2_hello_compact", wire(frame_bytes(HELLO_COMPACT, 21, 6000, compact_hello_body(uid), version=2)) + wa,
+           [good_a], {"type": 1}, "the compact HELLO does not exist before version 3")
+    short_uid = compact_hello_body(uid)[:-1]
+    broken("hello_compact_uid_len", wire(frame_bytes(HELLO_COMPACT, 21, 6000, short_uid)) + wa, [good_a],
+           {"hello": 1}, "a compact HELLO one byte shorter than its uid_len says")
     broken("v1_samples4", wire(frame_bytes(SAMPLES4, 21, 6000, samples_body(0, s4, four=True), version=1)) + wa,
            [good_a], {"type": 1}, "SAMPLES4 does not exist in protocol 1")
     broken("bad_length", wire(frame_bytes(SAMPLES, 21, 6000, samples_body(0, s1) + b"\x01")) + wa, [good_a],
@@ -237,7 +289,8 @@ def write_txt(cases, path):
 def main():
     cases = build_cases()
     doc = {"protocol": VERSION, "sample_fields": SAMPLE_FIELDS, "wheels3_fields": WHEELS3_FIELDS,
-           "sample_fields_v1": SAMPLE_FIELDS_V1, "status_fields": STATUS_FIELDS, "cases": cases}
+           "sample_fields_v1": SAMPLE_FIELDS_V1, "status_fields": STATUS_FIELDS,
+           "status_fields_v2": STATUS_FIELDS_V2, "cases": cases}
     (HERE / "vectors.json").write_text(json.dumps(doc, indent=1) + "\n")
     write_txt(cases, HERE / "vectors.txt")
     print(f"wrote {len(cases)} cases")

@@ -16,11 +16,13 @@ class Pin:
 
     def __init__(self, id, mode=-1, pull=-1):
         self.id = id
+        self._idle = 1 if pull == Pin.PULL_UP else 0  # an unconnected pin reads its pull
 
     def value(self, v=None):
-        return _b.pin_level.get(self.id, 0)
+        return _b.pin_level.get(self.id, self._idle)
 
     def irq(self, handler=None, trigger=3, hard=False):
+        # every pin IRQ runs at once here (the firmware asks for hard ones)
         _b.irq[self.id] = (handler, trigger, self)
 
 
@@ -50,16 +52,63 @@ class Timer:
         if kw:
             self.init(**kw)
 
-    def init(self, mode=1, freq=None, period=None, callback=None, hard=False):
+    def init(self, mode=1, freq=None, period=None, callback=None, **kw):
+        # As the ports do: ESP32 refuses hard=True (ValueError, "hard Timers are not
+        # implemented"); rp2 before 1.26 has no `hard` keyword (TypeError).
+        hard = kw.pop("hard", None)
+        if kw:
+            raise TypeError("unexpected keyword argument")
+        if hard is not None and _b.stim.board == "pico" and _b.micropython < (1, 26, 0):
+            raise TypeError("unexpected keyword argument 'hard'")
+        if hard and _b.stim.board == "esp32":
+            raise ValueError("hard Timers are not implemented")
         period_us = 1000000 // freq if freq else period * 1000
         _b.timer_period = period_us
         _b.timer_cb = callback
         _b.timer_obj = self
+        _b.timer_soft = not hard
         _b.timer_due = _b.now + period_us
 
     def deinit(self):
         _b.timer_due = simboard._FAR
         _b.timer_cb = None
+
+
+class UART:
+    # Only what the firmware uses: the console UART's baud rate (ESP32 UART 0).
+    def __init__(self, id, baudrate=None, **kw):
+        self.id = id
+        self.init(baudrate=baudrate, **kw)
+
+    def init(self, baudrate=None, **kw):
+        if baudrate and self.id == 0 and _b.stim.board == "esp32":
+            _b.set_baud(baudrate)
+
+
+class WDT:
+    def __init__(self, id=0, timeout=5000):
+        if _b.stim.board == "pico" and timeout > 8388:
+            raise ValueError("timeout exceeds 8388")  # rp2: 24-bit counter
+        _b.wdt_timeout = timeout * 1000
+        _b.wdt_fed = _b.now
+
+    def feed(self):
+        _b.wdt_fed = _b.now
+
+
+PWRON_RESET = 1
+HARD_RESET = 2
+WDT_RESET = 3
+DEEPSLEEP_RESET = 4
+SOFT_RESET = 5
+
+
+def reset_cause():
+    return _b.reset_cause
+
+
+def unique_id():
+    return _b.uid
 
 
 def idle():

@@ -5,8 +5,24 @@
 #
 # Time is virtual. The firmware's timer callbacks and pin IRQs fire in time
 # order whenever the firmware waits (machine.idle, time.sleep_*), or while a
-# write is stalled (a host that stopped reading), as interrupts would on the car.
-# In real-time mode the clock is paced to the wall clock.
+# write is blocked, as interrupts would on the car. In real-time mode the clock
+# is paced to the wall clock.
+#
+# What the boards do, from the MicroPython sources (firmware/README.md cites them):
+# - Soft timers (ESP32 always; rp2 before 1.26 or with hard=False) only schedule
+#   their callback (mp_sched_schedule). The queue holds MICROPY_SCHEDULER_DEPTH = 8
+#   entries; a tick that finds it full is lost without a trace. Queued callbacks run
+#   when the VM is between bytecodes: here, when a wait or a write returns.
+# - Output has the link's throughput: a write blocks until all but the TX buffer
+#   has left at the declared baud (ESP32 console UART: 115200 unless the firmware
+#   changes it; rp2 USB-CDC: ~1 MB/s). Hard interrupts fire during the block;
+#   soft ones queue.
+# - Ticks wrap at 2^30 (time.py's ticks_diff and ticks_add behave as a board's).
+# - A hard ISR runs for `isr_us`; a pin edge during it is handled after it (the
+#   RP2040 gives pin and timer IRQs one priority), so its timestamp is late.
+# - An exception in a hard timer callback stops that timer for good (rp2
+#   alarm_callback); a machine.WDT not fed within its timeout resets the board
+#   (WatchdogReset; run_firmware.py boots the firmware again).
 #
 # Nothing here may allocate while firing events: the firmware's allocation test
 # runs its sampler interrupt under micropython.heap_lock() through this code.
@@ -19,6 +35,18 @@ import utime
 
 _MASK30 = 0x3FFFFFFF
 _FAR = 1 << 62
+# per board: the console link at power-on (baud None: USB-CDC, ~1 MB/s), its TX
+# buffer, the scheduler depth, the MicroPython version the board runs
+_BOARDS = {
+    "pico": {"baud": None, "tx_buf": 256, "sched_depth": 8, "micropython": [1, 26, 0], "isr_us": 0},
+    "esp32": {"baud": 115200, "tx_buf": 128, "sched_depth": 8, "micropython": [1, 26, 0], "isr_us": 0},
+}
+_USB_BYTE_NS = 1000  # USB full speed CDC moves ~1 MB/s in practice (7-9 Mbit/s)
+RESET_CAUSES = {"power_on": 1, "hard": 2, "watchdog": 3, "deepsleep": 4, "soft": 5}
+
+
+class WatchdogReset(Exception):
+    pass
 
 
 class _Stim:
@@ -75,6 +103,36 @@ class Board:
         self.stall_i = 0
         self.row = -1
         self.adc_esp32 = s.board == "esp32"
+        # board behaviour; STID_SIM_BOARD (JSON) overrides the defaults above
+        opts = dict(_BOARDS[s.board])
+        extra = os.getenv("STID_SIM_BOARD")
+        if extra:
+            opts.update(json.loads(extra))
+        self.opts = opts
+        self.micropython = tuple(opts["micropython"])
+        self.set_baud(opts["baud"])
+        self.tx_buf = opts["tx_buf"]
+        self.tx_idle_ns = 0  # virtual time [ns] when the TX line has sent everything
+        self.tx_bytes = 0
+        self.sched_depth = opts["sched_depth"]
+        self.timer_soft = False
+        self.sched_n = 0  # timer callbacks waiting in the scheduler queue
+        self.sched_lost = 0  # ticks that found the queue full (the truth a test checks)
+        self.isr_us = opts["isr_us"]
+        self.busy_until = 0  # a hard ISR runs until then; pin edges wait
+        self.adc_fault_at = opts.get("adc_fault_at_us", _FAR)  # one ADC read raises then
+        self.timer_dead = False
+        self.wdt_timeout = 0
+        self.wdt_fed = 0
+        self.resets = 0
+        self.resetting = False
+        self.reset_cause = RESET_CAUSES["power_on"]
+        # machine.unique_id(): the RP2040's flash id is 8 bytes, the ESP32's MAC 6
+        self.uid = bytes(opts.get("uid", [0xE6, 0x60, 0x38, 0xB7, 0x13, 0x3A, 0x2B, 0x2F][:8 if s.board == "pico" else 6]))
+
+    def set_baud(self, baud):
+        self.baud = baud
+        self.byte_ns = _USB_BYTE_NS if baud is None else 10000000000 // baud  # start + 8 + stop bits
 
     # -- clock --------------------------------------------------------------
     def ticks_us(self):
@@ -82,6 +140,58 @@ class Board:
 
     def ticks_ms(self):
         return ((self.now + self.start_ticks) // 1000) & _MASK30
+
+    # -- interrupts -----------------------------------------------------------
+    def _timer_fires(self):
+        if self.timer_soft:  # mp_sched_schedule: queue it, or lose it
+            if self.sched_n < self.sched_depth:
+                self.sched_n += 1
+            else:
+                self.sched_lost += 1
+            return
+        try:
+            self.timer_cb(self.timer_obj)
+        except Exception as e:  # rp2: "Uncaught exception; don't run the callback again"
+            import sys
+            sys.print_exception(e)
+            self.timer_due = _FAR
+            self.timer_dead = True
+        self.busy_until = self.now + self.isr_us
+
+    def run_scheduled(self):
+        # The VM is between bytecodes: run the queued soft-timer callbacks, each at
+        # the time it actually runs (late); an exception is printed and forgotten.
+        while self.sched_n > 0 and self.timer_cb is not None:
+            self.sched_n -= 1
+            try:
+                self.timer_cb(self.timer_obj)
+            except Exception as e:
+                import sys
+                sys.print_exception(e)
+
+    def _check_wdt(self):
+        if self.wdt_timeout and self.now - self.wdt_fed > self.wdt_timeout:
+            # from here until reboot() the chip is resetting: no interrupts, no output
+            self.wdt_timeout = 0
+            self.resetting = True
+            self.timer_due = _FAR
+            self.timer_cb = None
+            self.sched_n = 0
+            raise WatchdogReset()
+
+    def reboot(self, cause):
+        # What survives a reset: the clock and the stimulus. Interrupts, timers and
+        # the scheduler queue are gone.
+        self.resets += 1
+        self.resetting = False
+        self.reset_cause = RESET_CAUSES[cause]
+        self.timer_due = _FAR
+        self.timer_cb = None
+        self.timer_soft = False
+        self.timer_dead = False
+        self.sched_n = 0
+        self.wdt_timeout = 0
+        self.irq.clear()
 
     def _next_steer(self):
         if self.steer_k >= len(self.stim.steer):
@@ -119,10 +229,14 @@ class Board:
                 break
             self._pace(t)
             self.now = t
+            self._check_wdt()
             if t == tt:
                 self.timer_due = tt + self.timer_period
-                self.timer_cb(self.timer_obj)
-            elif t == ts:
+                self._timer_fires()
+                continue
+            if t < self.busy_until:  # the edge's IRQ waits for the running ISR
+                self.now = self.busy_until
+            if t == ts:
                 if self.steer_high:
                     self.steer_high = False
                     self.steer_k += 1
@@ -138,6 +252,7 @@ class Board:
         if t_end > self.now:
             self._pace(t_end)
             self.now = t_end
+            self._check_wdt()
         if self.now >= self.stim.duration_us:
             self.finished = True
 
@@ -158,6 +273,8 @@ class Board:
         th = self._next_hall()
         if th < t:
             t = th
+        if self.sched_n:
+            t = self.now  # a queued callback is pending: the VM runs it at once
         if t >= _FAR:
             t = self.now + 1000
         end = self.stim.duration_us
@@ -166,6 +283,7 @@ class Board:
             self.finished = True
             return
         self.advance_to(t)
+        self.run_scheduled()
 
     # -- analog ---------------------------------------------------------------
     def volts_01mv(self, pin_no):
@@ -175,7 +293,13 @@ class Board:
             row = s.n_rows - 1
         return s.volts[row * s.n_cols + s.cols[pin_no]]
 
+    def _adc_fault(self):
+        if self.now >= self.adc_fault_at:  # a one-off read error (loose connector, EMI)
+            self.adc_fault_at = _FAR
+            raise OSError(5)
+
     def read_u16(self, pin_no):
+        self._adc_fault()
         v = self.volts_01mv(pin_no)
         c = (v * 4095 + 16500) // 33000  # RP2040: 12 bits over 0..3.3 V
         if c > 4095:
@@ -183,6 +307,7 @@ class Board:
         return (c << 4) | (c >> 8)  # as rp2's read_u16 scales 12 bits to 16
 
     def read_uv(self, pin_no):
+        self._adc_fault()
         v = self.volts_01mv(pin_no)  # ESP32, 11 dB: linear 0.15..2.45 V only
         if v < 1500:
             v = 1500
@@ -190,13 +315,32 @@ class Board:
             v = 24500
         return v * 100
 
-    # -- output with stalls ---------------------------------------------------
+    # -- output: throughput and stalls -----------------------------------------
     def stall_if_due(self):
-        # A host that stops reading blocks the write; interrupts keep firing.
+        # A host that stops reading: on USB-CDC the write blocks (interrupts keep
+        # firing); a UART has no flow control, so the write goes on and the USB
+        # bridge drops what the host does not read. True while bytes are dropped.
         if self.stall_i < len(self.stalls) and self.now >= self.stalls[self.stall_i][0]:
-            d = self.stalls[self.stall_i][1]
+            at, d = self.stalls[self.stall_i]
+            if self.baud is not None:
+                if self.now < at + d:
+                    return True
+                self.stall_i += 1
+                return False
             self.stall_i += 1
             self.advance_to(self.now + d)
+        return False
+
+    def transmit(self, n):
+        # n bytes join the TX queue; the write returns when all but tx_buf bytes are
+        # on the line (the driver blocks in C: hard IRQs fire, soft ones only queue).
+        now_ns = self.now * 1000
+        start = self.tx_idle_ns if self.tx_idle_ns > now_ns else now_ns
+        self.tx_idle_ns = start + n * self.byte_ns
+        self.tx_bytes += n
+        done_us = (self.tx_idle_ns - self.tx_buf * self.byte_ns + 999) // 1000
+        if done_us > self.now:
+            self.advance_to(done_us)
 
 
 class Output:
@@ -205,10 +349,19 @@ class Output:
         self._w = stream.write
 
     def write(self, buf, n=-1):
-        self.board.stall_if_due()
+        b = self.board
         if n < 0:
-            return self._w(buf)
-        return self._w(buf, n)
+            n = len(buf)
+        if b.resetting:
+            return n
+        dropped = b.stall_if_due()
+        b.transmit(n)
+        if dropped:
+            b.run_scheduled()
+            return n
+        r = self._w(buf, n)
+        b.run_scheduled()  # back in the VM: queued callbacks run
+        return r
 
 
 BOARD = None

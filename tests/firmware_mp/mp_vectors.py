@@ -31,8 +31,8 @@ for case in doc["cases"]:
         elif fr["type"] == codec.STATUS:
             d = fr["decoded"]
             n = enc.status(fr["t_us"], *[d[k] for k in doc["status_fields"]])
-        else:
-            n = enc.hello(fr["t_us"], body)
+        else:  # HELLO and HELLO_COMPACT: the body is built once at boot, sent as is
+            n = enc.hello(fr["t_us"], body, fr["type"])
         wire += enc.wire[:n]
     check(binascii.hexlify(wire).decode() == case["wire"], "encode " + case["name"])
 done()
