@@ -5,14 +5,16 @@ plus a CSV in the import contract and the truth beside them."""
 from __future__ import annotations
 
 import csv
+import os
 import tempfile
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 from cobs import cobs
 
-from hil_sim.firmware_runner import run_firmware
+from hil_sim.firmware_runner import run_firmware, start_firmware
 from hil_sim.run import SimConfig, SimRun, simulate_run, write_truth
 from host import protocol as p
 from host import units
@@ -31,59 +33,118 @@ def firmware_bytes(run: SimRun) -> bytes:
         return run_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size)
 
 
-def frame_chunks(stream: bytes):
-    """Split a clean stream after each delimiter, with each frame's MCU time [us]."""
-    chunks, times = [], []
-    last_t = 0
-    pos = 0
-    while pos < len(stream):
-        end = stream.find(b"\x00", pos)
-        end = len(stream) if end < 0 else end + 1
-        chunk = stream[pos:end]
-        try:
-            raw = cobs.decode(chunk[:-1])
-            if len(raw) >= p.HEADER_SIZE:
-                last_t = int.from_bytes(raw[6:10], "little")
-        except cobs.DecodeError:
-            pass
-        chunks.append(chunk)
-        times.append(last_t)
-        pos = end
-    t = np.asarray(times, dtype=np.int64)
-    steps = np.diff(t) % p.MOD
-    steps[steps > p.MOD // 2] -= p.MOD
-    return chunks, np.concatenate([[0], np.cumsum(steps)]) + (t[0] if len(t) else 0)
+FAULT_BLOCK = 1 << 16  # faults are drawn per block of this many clean bytes: the same seed, the same faults
 
 
 def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: int | None = None,
            faults=None) -> dict:
     """Simulate, run the firmware, record. ``faults`` (hil_sim.faults.LinkFaults) corrupt the
     bytes on their way to the recorder, as a lossy link does in real time (the CSV stays
-    the clean stream's: it is the ideal logger's)."""
+    the clean stream's: it is the ideal logger's).
+
+    The firmware's bytes are recorded as they come out of MicroPython (streamed, on the
+    other core), not collected first: recording overlaps the firmware's run and the
+    stream is never held whole (except for the CSV, which needs it)."""
     run = simulate_run(cfg)
-    stream = firmware_bytes(run)
-    wire = faults.apply(stream) if faults is not None and faults.active else stream
-    stats = record_stream(wire, mcap_path, start_ns)
     if truth_path:
         write_truth(run, truth_path)
+    keep = bytearray() if csv_path else None
+    active = faults is not None and faults.active
+    with tempfile.TemporaryDirectory(prefix="stid-sim-") as tmp:
+        stim = Path(tmp) / "stimulus.bin"
+        run.stimulus.write(stim)
+        c = run.cfg
+        proc = start_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size)
+        err = bytearray()
+        drain = threading.Thread(target=lambda: err.extend(proc.stderr.read()), daemon=True)
+        drain.start()  # the board's stderr must not fill its pipe while we read stdout
+        rs = RecordStream(mcap_path, start_ns)
+        block = bytearray()
+        fd = proc.stdout.fileno()
+        while True:
+            data = os.read(fd, 1 << 16)
+            if keep is not None:
+                keep += data
+            if not active:
+                if data:
+                    rs.feed(data)
+            else:
+                block += data
+                while len(block) >= FAULT_BLOCK or (not data and block):
+                    rs.feed(faults.apply(bytes(block[:FAULT_BLOCK])))
+                    del block[:FAULT_BLOCK]
+            if not data:
+                break
+        proc.wait()
+        drain.join()
+        stats = rs.finish()
+    if proc.returncode != 0:
+        raise RuntimeError("firmware failed on the simulated board:\n" + err.decode(errors="replace"))
     if csv_path:
-        write_csv(run, stream, csv_path)
+        write_csv(run, bytes(keep), csv_path)
     return stats
+
+
+class RecordStream:
+    """The firmware's bytes, in pieces of any size, through the recorder stid-log uses; each
+    frame is received when the MCU sent it (its header time, unwrapped) plus a fixed latency."""
+
+    def __init__(self, mcap_path, start_ns: int | None = None):
+        self.start_ns = start_ns if start_ns is not None else time.time_ns()
+        self.log = McapLog(mcap_path, fsync=False)
+        self.rec = Recorder(self.log)
+        self._tail = b""  # bytes after the last delimiter
+        self._raw_t: int | None = None  # the last frame's MCU time as sent
+        self._t = 0  # ... unwrapped
+        self.base: int | None = None
+
+    def feed(self, data: bytes) -> None:
+        buf = self._tail + data
+        end = buf.rfind(b"\x00")
+        if end < 0:
+            self._tail = buf
+            return
+        self._tail = buf[end + 1:]
+        pos = 0
+        for part in buf[:end].split(b"\x00"):
+            t = self._frame_time(part)
+            if self.base is None:
+                self.base = self.start_ns - t * 1000
+                self.rec.event("connect", self.base, "simulated car, faster than real time")
+            self.rec.feed(buf[pos:pos + len(part) + 1], self.base + t * 1000 + HOST_LATENCY_NS)
+            pos += len(part) + 1
+
+    def _frame_time(self, part: bytes) -> int:
+        try:
+            raw = cobs.decode(part)
+            if len(raw) >= p.HEADER_SIZE:
+                t = int.from_bytes(raw[6:10], "little")
+                if self._raw_t is not None:
+                    step = (t - self._raw_t) % p.MOD
+                    self._t += step - p.MOD if step > p.MOD // 2 else step
+                else:
+                    self._t = t
+                self._raw_t = t
+        except cobs.DecodeError:
+            pass  # a damaged frame is received with the last good one's time
+        return self._t
+
+    def finish(self) -> dict:
+        if self._tail:
+            t = self._t
+            self.rec.feed(self._tail, (self.base or self.start_ns) + t * 1000 + HOST_LATENCY_NS)
+        base = self.base if self.base is not None else self.start_ns
+        stats = self.rec.finish(base + self._t * 1000 + HOST_LATENCY_NS)
+        self.log.close()
+        return stats
 
 
 def record_stream(stream: bytes, mcap_path, start_ns: int | None = None) -> dict:
     """The firmware's bytes through the same recorder stid-log uses, with receive times
     that follow the MCU clock (plus a fixed latency), frame by frame."""
-    chunks, t_us = frame_chunks(stream)
-    base = (start_ns if start_ns is not None else time.time_ns()) - int(t_us[0]) * 1000 if len(t_us) else 0
-    log = McapLog(mcap_path, fsync=False)
-    rec = Recorder(log)
-    rec.event("connect", base, "simulated car, faster than real time")
-    for chunk, tu in zip(chunks, t_us):
-        rec.feed(chunk, base + int(tu) * 1000 + HOST_LATENCY_NS)
-    stats = rec.finish(base + int(t_us[-1]) * 1000 + HOST_LATENCY_NS if len(t_us) else base)
-    log.close()
-    return stats
+    rs = RecordStream(mcap_path, start_ns)
+    rs.feed(stream)
+    return rs.finish()
 
 
 def write_csv(run: SimRun, stream: bytes, path) -> None:

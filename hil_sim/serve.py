@@ -96,7 +96,7 @@ def serve(cfg: SimConfig, opts: ServeOptions, out=None) -> int:
     def on_signal(signum, frame):
         stop["flag"] = True
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     run = simulate_run(cfg)
     if opts.truth:
         write_truth(run, opts.truth)

@@ -6,6 +6,16 @@ import argparse
 import sys
 
 from host.errors import HostError
+from host.protocol import LINK_BAUD
+
+
+def _version() -> str:
+    # the installed distribution's version: host/ does not import stid
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("stid")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -15,13 +25,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "Ctrl-C finishes the file cleanly; an unplugged port is waited for and reopened).")
     ap.add_argument("port", nargs="?", help="serial port, e.g. /dev/ttyUSB0, /dev/ttyACM0 or a "
                                             "/dev/serial/by-id/... link (stable across replug)")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     ap.add_argument("-o", "--output", help="output file (default: stid-YYYYmmdd-HHMMSS.mcap)")
     ap.add_argument("--duration", type=float, help="stop after this many seconds")
-    ap.add_argument("--baud", type=int, default=115200, help="baud rate (ignored by USB-CDC; default 115200)")
+    ap.add_argument("--baud", type=int, default=LINK_BAUD,
+                    help=f"baud rate: the firmware's UART rate (ignored by USB-CDC; default {LINK_BAUD})")
     ap.add_argument("--idle-timeout", type=float, default=10.0,
                     help="give up if no valid frame arrives within this many seconds (default 10)")
     ap.add_argument("--reconnect-timeout", type=float, default=None,
                     help="after an unplug, wait at most this many seconds for the port (default: forever)")
+    ap.add_argument("--hello-from", metavar="EARLIER.mcap",
+                    help="if no HELLO gets through in this run, take the configuration from this earlier log of "
+                         "the same board (the file says so)")
     ap.add_argument("--repair", metavar="FILE", help="rewrite a cut-short MCAP file into a complete one, then exit")
     ap.add_argument("--repair-output", metavar="OUT", help="where --repair writes (default FILE.repaired.mcap)")
     ap.add_argument("--status", action=argparse.BooleanOptionalAction, default=None,
@@ -36,14 +51,14 @@ def main(argv=None) -> int:
         if args.repair:
             from host.repair import repair_cli
 
-            return repair_cli(args.repair, args.repair_output)
+            return repair_cli(args.repair, args.repair_output, args.hello_from)
         if not args.port:
             ap.error("give the serial port, e.g. stid-log /dev/ttyUSB0 (or --repair FILE)")
         from host.logger import LogOptions, Logger, summary_line
 
         stats = Logger(LogOptions(port=args.port, output=args.output, duration=args.duration, baud=args.baud,
                                   idle_timeout=args.idle_timeout, reconnect_timeout=args.reconnect_timeout,
-                                  status=args.status)).run()
+                                  status=args.status, hello_from=args.hello_from)).run()
         print(summary_line(stats), file=sys.stderr)
         return 0
     except HostError as e:

@@ -3,8 +3,16 @@
 - Everything read is archived raw; frames are decoded, unwrapped and written.
 - The file is flushed and fsynced every second: a SIGKILL or power cut loses at
   most ~1 s. SIGINT/SIGTERM finish the file cleanly.
+- The port is opened exclusively: a second logger on it fails at once.
 - An unplugged port is reopened by the same path (a /dev/serial/by-id link stays
-  valid across replug); the gap is recorded and logging continues in the same file.
+  valid across replug). What comes back must be the same board: its USB serial
+  number (where the port has one) and the ``uid`` of its next HELLO are checked
+  before a byte of it is written; another board ends the run with a clear message.
+  Only then is the gap recorded and logging continues in the same file. A quiet
+  port is not an unplug: it is warned about (``host.link_watch``), not a gap.
+- SIGINT, SIGTERM and SIGHUP (terminal closed) finish the file cleanly.
+- A run that ends without any HELLO exits non-zero (or takes one with
+  ``--hello-from`` from an earlier log of the same board, and says so).
 - Errors a user can cause end in one message and a non-zero exit.
 """
 
@@ -20,7 +28,10 @@ from pathlib import Path
 
 import serial
 
+from host import protocol as p
 from host.errors import HostError
+from host.frame_decoder import FrameDecoder
+from host.link_watch import LinkWatch, advice, describe_rejects
 from host.mcap_log import McapLog
 from host.recorder import Recorder
 
@@ -28,6 +39,9 @@ EXIT_OK = 0
 EXIT_USAGE = 2
 EXIT_NO_DATA = 3
 EXIT_DISK = 4
+EXIT_NO_HELLO = 5
+EXIT_OTHER_BOARD = 6
+IDENTIFY_S = 3.0  # after a replug, wait this long for a HELLO (sent every 1-2 s) to tell the board
 
 
 class PortError(HostError):
@@ -42,16 +56,25 @@ class NoDataError(HostError):
     exit_code = EXIT_NO_DATA
 
 
+class NoHelloError(HostError):
+    exit_code = EXIT_NO_HELLO
+
+
+class OtherBoardError(HostError):
+    exit_code = EXIT_OTHER_BOARD
+
+
 @dataclass
 class LogOptions:
     port: str
     output: str | None = None
     duration: float | None = None
-    baud: int = 115200
+    baud: int = p.LINK_BAUD  # what the firmware sets (ESP32 UART); USB-CDC ignores it
     idle_timeout: float = 10.0  # s without any valid frame at the start -> give up
     reconnect_timeout: float | None = None  # s to wait for a replugged port (None: forever)
     flush_period: float = 1.0
     status: bool | None = None  # live status line (default: only on a terminal)
+    hello_from: str | None = None  # an earlier log of the same board, if no HELLO arrives
 
 
 def default_output_name() -> str:
@@ -60,9 +83,13 @@ def default_output_name() -> str:
 
 def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial:
     try:
-        return serial.Serial(path, baudrate=baud, timeout=read_timeout)
+        # exclusive: a second program opening the port would steal half the bytes of each
+        return serial.Serial(path, baudrate=baud, timeout=read_timeout, exclusive=True)
     except serial.SerialException as e:
         err = e.errno if isinstance(e.errno, int) else getattr(e.__context__, "errno", None)
+        if err in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise PortError(f"{path} is already in use by another program (another stid-log?); "
+                            "stop it first, one logger per port") from None
         if err == errno.ENOENT or not os.path.exists(path):
             raise PortError(f"serial port {path} does not exist; plug the car in, or list ports with "
                             "'python -m serial.tools.list_ports'") from None
@@ -72,6 +99,20 @@ def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial
         if err == errno.EBUSY:
             raise PortError(f"{path} is busy: another program (a serial monitor?) has it open") from None
         raise PortError(f"cannot open {path}: {e}") from None
+
+
+def port_identity(path: str) -> dict:
+    """What the OS says about the device behind ``path``: its USB serial number (on an
+    RP2040 the flash's unique id; the same board whatever its boot), vid, pid. Empty
+    values for a port that has none (a pty, a plain UART)."""
+    from serial.tools import list_ports
+
+    real = os.path.realpath(path)
+    for info in list_ports.comports():
+        if os.path.realpath(info.device) == real:
+            return {"path": path, "device": info.device, "usb_serial": info.serial_number or "",
+                    "vid": info.vid or 0, "pid": info.pid or 0, "description": info.description or ""}
+    return {"path": path, "device": real, "usb_serial": "", "vid": 0, "pid": 0, "description": ""}
 
 
 def _check_output(path: Path) -> None:
@@ -134,11 +175,14 @@ class Logger:
         except OSError as e:
             raise DiskError(f"cannot create {self.path}: {e.strerror}") from None
         rec = Recorder(log)
+        self.identity = port_identity(o.port)
+        log.metadata("stid.port", self.identity)
         status = StatusLine(sys.stderr.isatty() if o.status is None else o.status)
-        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        self.status = status
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
         try:
-            return self._loop(log, rec, status)
-        except NoDataError:
+            stats = self._loop(log, rec, status)
+        except (NoDataError, OtherBoardError):
             self._close_after_error(log, rec)
             raise
         except OSError as e:
@@ -153,11 +197,26 @@ class Logger:
             status.close()
             if self.port is not None:
                 self.port.close()
+        if not rec.hello_seen and rec.samples and rec.supplied_hello is None:
+            errs = describe_rejects({k: v for k, v in rec.stats.errors.items() if v})
+            raise NoHelloError(
+                f"the run ended without a HELLO from the board ({stats['samples']} samples in {self.path}; "
+                f"rejected frames: {errs or 'none'}), so their ADC scale is unknown: run "
+                f"'stid repair {self.path} --hello-from EARLIER.mcap' with a log of the same board, or log again")
+        return stats
+
+    def _warn(self, rec: Recorder, event: str, text: str) -> None:
+        """A warning a person must see now, and an event in the file."""
+        rec.event(event, time.time_ns(), text)
+        self.status.close()
+        self.status._width = 0
+        print(f"stid-log: warning: {text}", file=sys.stderr, flush=True)
 
     def _loop(self, log: McapLog, rec: Recorder, status: StatusLine) -> dict:
         o = self.opts
         t0 = self.t0 = time.monotonic()
-        rec.event("connect", time.time_ns(), o.port)
+        rec.event("connect", time.time_ns(), f"{o.port} (USB serial {self.identity['usb_serial'] or 'none'})")
+        watch = LinkWatch(t0)
         last_stats = t0
         rate_n, rate_t, rate = 0, t0, 0.0
         while self.stop_reason is None:
@@ -176,6 +235,11 @@ class Logger:
             host_ns = time.time_ns()
             before = rec.samples
             rec.feed(data, host_ns)
+            if len(rec.uids) > 1:
+                raise OtherBoardError(
+                    f"another board (uid {rec.uids[-1]}, was {rec.uids[0]}) is sending on {o.port}; {self.path} "
+                    "ends here (its last frames, after the 'boot' event, are the other board's); "
+                    "start a new log for it")
             rate_n += rec.samples - before
             if rec.stats.accepted == 0 and now - t0 > o.idle_timeout:
                 self._no_data(rec)
@@ -183,12 +247,20 @@ class Logger:
             if now - last_stats >= 1.0:
                 rec.write_stats(host_ns)
                 last_stats = now
+                for event, text in watch.check(now, rec.stats, rec.samples, rec.hello_seen, True):
+                    self._warn(rec, event, text)
             if now - rate_t >= 1.0:
                 rate, rate_n, rate_t = rate_n / (now - rate_t), 0, now
             st = rec.stats
             status.update(f"{self.path.name}  {rate:6.0f} samples/s  frames {st.accepted}  lost {st.lost_frames}"
                           f"  crc {st.errors['crc']}  ay {rec.latest['ay']:+6.2f} m/s²"
                           f"  r {rec.latest['r']:+6.3f} rad/s")
+        if not rec.hello_seen and rec.samples and o.hello_from:
+            from host.hello_supply import hello_from_file
+
+            doc, warning = hello_from_file(o.hello_from, self.identity)
+            rec.supply_hello(doc, str(o.hello_from))
+            self._warn(rec, "hello", warning)
         stats = rec.finish(time.time_ns())
         log.close()
         stats["stop"] = self.stop_reason
@@ -209,24 +281,27 @@ class Logger:
         if rec.stats.bytes == 0:
             msg = (f"no data from {self.opts.port} in {self.opts.idle_timeout:.0f} s: is the car powered and "
                    "the stid firmware running? ('stid flash' installs it)")
+        elif rec.stats.rejected and rec.stats.errors.get("version_newer", 0) >= 0.5 * rec.stats.rejected:
+            msg = (f"{self.opts.port} sends frames of a newer stid protocol ({rec.stats.errors['version_newer']} "
+                   f"rejected): this log needs a newer stid (pip install -U stid). The bytes are kept in "
+                   f"{self.path} (topic /stid/raw)")
         else:
+            why = describe_rejects(rec.stats.errors)
             msg = (f"{self.opts.port} sent {rec.stats.bytes} bytes but no valid stid frame in "
-                   f"{self.opts.idle_timeout:.0f} s: wrong baud rate (--baud), or not the stid firmware? "
+                   f"{self.opts.idle_timeout:.0f} s (rejected: {why or 'nothing frame-like'}): "
+                   f"{advice(rec.stats.errors) if why else 'wrong baud rate (--baud), or not the stid firmware?'} "
                    f"The bytes are kept in {self.path} (topic /stid/raw)")
         raise NoDataError(msg)
 
     def _reconnect(self, rec: Recorder, log: McapLog, status: StatusLine, why: str) -> bool:
-        """The port went away: keep the file, wait for the same path to come back."""
+        """The port went away: keep the file, wait for the same path to come back, and
+        accept it only as the same board."""
         o = self.opts
         lost_ns = time.time_ns()
         rec.event("disconnect", lost_ns, why)
         rec.decoder.reset_link()
         log.flush()
-        try:
-            self.port.close()
-        except (serial.SerialException, OSError):
-            pass
-        self.port = None
+        self._close_port()
         t_lost = time.monotonic()
         while self.stop_reason is None:
             waited = time.monotonic() - t_lost
@@ -235,7 +310,8 @@ class Logger:
                 return False
             if o.reconnect_timeout is not None and waited > o.reconnect_timeout:
                 self.stop_reason = "port gone"
-                print(f"\n{o.port} did not come back within {o.reconnect_timeout:.0f} s; "
+                status.close()
+                print(f"{o.port} did not come back within {o.reconnect_timeout:.0f} s; "
                       f"the file is complete up to the unplug", file=sys.stderr)
                 return False
             status.update(f"{self.path.name}  port unplugged for {waited:4.1f} s, waiting for {o.port} ...")
@@ -244,13 +320,81 @@ class Logger:
             except PortError:
                 time.sleep(0.2)
                 continue
-            back_ns = time.time_ns()
-            gap = {"from_ns": lost_ns, "to_ns": back_ns, "seconds": (back_ns - lost_ns) / 1e9}
+            held = self._identify(rec)
+            if held is None:  # gone again, or stopped, while identifying
+                continue
+            back_ns = held[0][1] if held else time.time_ns()
+            gap = {"from_s": lost_ns / 1e9, "to_s": back_ns / 1e9, "seconds": (back_ns - lost_ns) / 1e9}
             rec.gaps.append(gap)
-            rec.event("reconnect", back_ns, f"{o.port} back after {gap['seconds']:.2f} s")
+            rec.event("reconnect", back_ns, f"{o.port} back after {gap['seconds']:.2f} s ({self._same_how})")
+            for data, ns in held:
+                rec.feed(data, ns)
             log.flush()
             return True
         return False
+
+    def _close_port(self) -> None:
+        try:
+            self.port.close()
+        except (serial.SerialException, OSError):
+            pass
+        self.port = None
+
+    def _identify(self, rec: Recorder):
+        """Read from the reopened port without writing until it is known to be the same
+        board. Returns the (bytes, host_ns) read meanwhile, or None if the port went away.
+        Raises OtherBoardError for another board."""
+        o = self.opts
+        ident = port_identity(o.port)
+        was, now_serial = self.identity.get("usb_serial"), ident.get("usb_serial")
+        if was and now_serial and was != now_serial:
+            raise OtherBoardError(
+                f"after the unplug, {o.port} is another device (USB serial {now_serial}, was {was}); "
+                f"{self.path} holds the first board's run up to the unplug; start a new log for the other one")
+        uids = list(rec.uids)
+        probe = FrameDecoder(track_seq=False)
+        held: list = []
+        t0 = time.monotonic()
+        quiet_warned = False
+        while self.stop_reason is None:
+            if o.duration is not None and time.monotonic() - self.t0 >= o.duration:
+                self.stop_reason = "duration"
+                return None
+            try:
+                data = self.port.read(65536)
+            except (serial.SerialException, OSError):
+                self._close_port()
+                return None
+            if data:
+                held.append((data, time.time_ns()))
+                if not probe.stats.accepted and len(held) > 2000:
+                    del held[:1000]  # not a stid board (so far): nothing of it will be written
+                for fr in probe.feed(data):
+                    if fr.type != p.HELLO:  # either form
+                        continue
+                    try:
+                        uid = fr.hello().get("uid")
+                    except (ValueError, UnicodeDecodeError):
+                        continue
+                    if uids and uid and uid not in uids:
+                        raise OtherBoardError(
+                            f"after the unplug, another board answers on {o.port} (uid {uid}, was {uids[-1]}); "
+                            f"{self.path} holds the first board's run up to the unplug; start a new log for it")
+                    self._same_how = (f"same board: uid {uid}" if uids and uid else
+                                      f"same USB serial {was}" if was and now_serial else
+                                      "same board not checked: no uid, no USB serial")
+                    return held
+            elapsed = time.monotonic() - t0
+            if probe.stats.accepted and elapsed >= IDENTIFY_S:
+                self._same_how = (f"same USB serial {was}" if was and now_serial else
+                                  "same board not checked: no HELLO yet")
+                return held
+            if not probe.stats.accepted and elapsed >= o.idle_timeout and not quiet_warned:
+                quiet_warned = True
+                self._warn(rec, "silence", f"{o.port} is back but sends no stid frame in {elapsed:.0f} s: "
+                                           "another device, or the car not running? Nothing is recorded from it")
+                held.clear()
+        return None
 
 
 def summary_line(stats: dict) -> str:
@@ -258,6 +402,6 @@ def summary_line(stats: dict) -> str:
     bad = sum(e.values())
     return (f"{stats['file']}: {stats['samples']} samples, {sum(stats['frames'].values())} frames, "
             f"{stats['lost_frames']} lost, {bad} rejected ({e['crc']} CRC), "
-            f"{stats['missing_samples']} samples missing ({stats['mcu_overruns']} overrun on the car), "
+            f"{stats['missing_samples']} samples missing ({stats['mcu_overruns']} overrun, {stats.get('mcu_missed', 0)} timer periods missed on the car), "
             f"{len(stats['gaps'])} unplug gaps "
             f"[{stats['stop']}]")

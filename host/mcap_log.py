@@ -1,12 +1,12 @@
 """The MCAP file of a logged run: what goes in it and how it stays safe.
 
-Channels (all messages carry the host receive time as log_time, ns since epoch):
+Channels (all messages carry a host-clock log_time, ns since epoch):
 
 | topic | encoding | content |
 |---|---|---|
-| `/stid/raw` | `stid.raw` (no schema) | every byte read from the port, as read: a decoder bug can be fixed later |
-| `/stid/frames` | `stid.frames.v1` (no schema) | the accepted frames of one port read, each as u16 length + frame without COBS and CRC; the fast path for loading |
-| `/stid/samples` | `json` + jsonschema | the samples of one port read as column arrays: raw counts, index, unwrapped MCU time and host time (in Foxglove plot e.g. `/stid/samples.ay[0]`) |
+| `/stid/raw` | `stid.raw.v2` (no schema) | every byte read from the port, grouped per ~100 ms: u32 n, n u32 lengths, n u32 receive offsets [us] from the log time, then the n reads; a decoder bug can be fixed later |
+| `/stid/frames` | `stid.frames.v2` (no schema) | the accepted frames (without COBS and CRC), grouped per ~100 ms: u32 n, n u16 lengths, n u32 receive offsets [us], then the n frames; the exact, fast path for loading (`stid.frames.v1`, u16 length + frame repeated, one message per read, in older logs) |
+| `/stid/samples` | `json` + jsonschema | one message per sample in SI units (datasheet conversions, for viewing), log time = the sample's instant on the host clock from the clock model: Foxglove plots `/stid/samples.ay` directly |
 | `/stid/status` | `json` + jsonschema | the firmware's STATUS frames |
 | `/stid/hello` | `json` + jsonschema | the firmware's HELLO frames |
 | `/stid/events` | `json` + jsonschema | connect, disconnect, reconnect, firmware restart |
@@ -14,6 +14,9 @@ Channels (all messages carry the host receive time as log_time, ns since epoch):
 
 Metadata records: `stid.hello` (first HELLO of each boot), `stid.clock` (offset and
 drift of MCU time against host time) and `stid.stats` (final link statistics).
+
+No JSON integer exceeds 2^53 (JavaScript's exact range): host times in JSON are
+seconds (floats); nanoseconds live only in log_time.
 
 Crash safety: ``flush()`` closes the open chunk and writes it out at least once
 per second (``Writer.flush``, mcap >= 1.6) and fsyncs, so a SIGKILL or a power cut
@@ -27,61 +30,149 @@ import json
 import os
 import time
 
+import numpy as np
+
 from mcap.writer import CompressionType, Writer
 
+_INT = {"type": "integer"}
+_NUM = {"type": "number"}
+_STR = {"type": "string"}
+_NUM_OR_NULL = {"type": ["number", "null"]}
+_INT_OR_NULL = {"type": ["integer", "null"]}
+_STR_OR_NULL = {"type": ["string", "null"]}
+_COUNTS = {"type": "object", "additionalProperties": _INT}
+
+
+def _obj(description: str, props: dict, required=None, extra=False) -> dict:
+    out = {"type": "object", "description": description, "properties": props,
+           "additionalProperties": extra}
+    if required:
+        out["required"] = list(required)
+    return out
+
+
+# One message per sample, in SI units, so that Foxglove's Plot panel plots e.g.
+# /stid/samples.ay against log time (the host clock, from the clock model).
+SI_FIELDS = {
+    "t": ("s", "MCU time of the sample since the first sample of this boot (the crystal's clock)"),
+    "ax": ("m/s^2", "longitudinal specific force, ADXL335 datasheet zero and sensitivity (uncalibrated)"),
+    "ay": ("m/s^2", "lateral specific force, ISO 8855 (left positive), datasheet scale (uncalibrated)"),
+    "az": ("m/s^2", "vertical specific force; null when the board does not sample it"),
+    "r": ("rad/s", "yaw rate, ISO 8855 (left turn positive), LISY300AL datasheet zero and scale; "
+                   "the gyro's bias is removed only by stid (from the stand-still)"),
+    "steer_pulse": ("s", "width of the servo pulse the receiver sent (null: no pulse)"),
+    "steer": ("rad", "front road-wheel angle by a typical servo map (1500 us centre, 500 us per 25 deg); "
+                     "'stid calibrate' measures the car's own map, 'stid export' uses it"),
+    "wheel_rate": ("rad/s", "angular speed of the (first) hall-sensed wheel from its last two edges, held"),
+}
+SI_SCHEMA = _obj(
+    "One sample in SI units (ISO 8855 axes: x forward, y left, z up). Values are the sensors' "
+    "datasheet conversions for viewing; 'stid export' gives calibrated ones. Exact counts are in "
+    "/stid/frames.",
+    {"boot": {"type": "string", "description": "firmware boot this sample belongs to"},
+     "index": {"type": "integer", "description": "sample index since boot, modulo 2^30 (gaps: lost samples)"},
+     **{k: {"type": ["number", "null"], "description": f"[{unit}] {text}"} for k, (unit, text) in SI_FIELDS.items()}},
+    required=["boot", "index", "t", "ay", "r"])
+
 SCHEMAS = {
-    "stid.Samples": {
-        "type": "object",
-        "description": "The samples of one port read as column arrays: raw ADC counts "
-                       "(65535 = not sampled; convert with the HELLO content), sample index, unwrapped "
-                       "MCU time [us] and the clock model's host time [ns]. steer_t_us: MCU ticks of the "
-                       "falling edge of the servo pulse whose width is steer_us (4294967295: unknown, "
-                       "protocol 1). wheelK_*: hall sensors 1-3 of four-wheel frames (present only then).",
-        "properties": {
-            "boot": {"type": "string"}, "n": {"type": "integer"},
-            **{k: {"type": "array", "items": {"type": "integer"}}
-               for k in ("index", "t_mcu_us", "t_host_ns", "ax", "ay", "az", "yaw", "steer_us", "wheel_count",
-                         "wheel_t_us", "vbat", "steer_t_us", "wheel1_count", "wheel1_t_us", "wheel2_count",
-                         "wheel2_t_us", "wheel3_count", "wheel3_t_us")},
-        },
-    },
-    "stid.Status": {"type": "object", "description": "Firmware STATUS frame", "properties": {}},
-    "stid.Hello": {"type": "object", "description": "Firmware HELLO frame", "properties": {}},
-    "stid.Event": {"type": "object", "properties": {"event": {"type": "string"}, "detail": {"type": "string"}}},
-    "stid.Stats": {"type": "object", "description": "Link statistics", "properties": {}},
+    "stid.Sample": SI_SCHEMA,
+    "stid.Status": _obj(
+        "The firmware's STATUS frame (about once a second)",
+        {"boot": _STR, "seq": {**_INT, "description": "frame sequence number, modulo 2^30"},
+         "uptime_ms": _INT, "samples": {**_INT, "description": "samples taken since boot"},
+         "overruns": {**_INT, "description": "samples lost in the MCU's ring (host too slow)"},
+         "frames": _INT, "tx_short": {**_INT, "description": "writes the USB port cut short"},
+         "isr_max_us": _INT, "isr_last_us": _INT, "ring_peak": _INT, "ring_size": _INT,
+         "missed": {**_INT_OR_NULL, "description": "timer periods with no sample (protocol 3; null before)"},
+         "late_max_us": {**_INT_OR_NULL, "description": "largest lateness of a sample [us] (protocol 3)"}},
+        required=["boot", "seq", "uptime_ms", "samples", "overruns"]),
+    "stid.Hello": _obj(
+        "The firmware's HELLO: what the board samples and how (full or compact form)",
+        {"proto": _INT, "fw": _STR_OR_NULL, "board": _STR_OR_NULL, "boot_id": _STR, "rate_hz": _INT,
+         "batch": _INT, "mod": _INT,
+         "adc": _obj("ADC", {"bits": _INT, "vref": _NUM, "unit": _STR}, extra=True),
+         "adc_clip_v": _NUM_OR_NULL,
+         "channels": {"type": "object", "additionalProperties": {"type": ["object", "null"]}},
+         "steer": {"type": "object"}, "wheel": {"type": "object"},
+         "wheels": {"type": "array", "items": {"type": "object"}},
+         "uid": {**_STR_OR_NULL, "description": "the MCU's unique id (hex): the same board across reboots"},
+         "micropython": _STR_OR_NULL, "timer": _STR_OR_NULL, "reset_cause": _STR_OR_NULL,
+         "link": {"type": ["object", "null"]}, "sim": {"type": "boolean"}, "hello": _STR_OR_NULL,
+         "supplied_from": {**_STR, "description": "set when this HELLO was not received but taken "
+                                                  "from a vehicle file or an earlier log"}},
+        required=["boot_id"], extra=True),
+    "stid.Event": _obj(
+        "Something that happened to the link or the run",
+        {"event": {**_STR, "description": "connect, disconnect, reconnect, boot, other_board, rejects, "
+                                          "silence, no_hello, hello, stop"},
+         "detail": _STR, "boot": _STR},
+        required=["event", "detail"]),
+    "stid.Stats": _obj(
+        "Link statistics so far (every second and at the end)",
+        {"bytes": _INT, "frames": _COUNTS,
+         "errors": {**_COUNTS, "description": "rejected frames by reason"},
+         "lost_frames": _INT, "restarts": _INT, "samples": _INT, "missing_samples": _INT,
+         "mcu_overruns": _INT,
+         "mcu_missed": {**_INT, "description": "timer periods the car could not sample (its STATUS `missed`)"},
+         "hello_seen": {"type": "boolean"},
+         "gaps": {"type": "array", "items": _obj("an unplug", {
+             "from_s": {**_NUM, "description": "host time [s since 1970]"}, "to_s": _NUM, "seconds": _NUM})}},
+        extra=True),
 }
 TOPICS = {
-    "samples": ("/stid/samples", "stid.Samples"),
+    "samples": ("/stid/samples", "stid.Sample"),
     "status": ("/stid/status", "stid.Status"),
     "hello": ("/stid/hello", "stid.Hello"),
     "events": ("/stid/events", "stid.Event"),
     "stats": ("/stid/stats", "stid.Stats"),
 }
+SI_TOPIC = "/stid/samples"
+STATS_TOPIC = "/stid/stats"
 RAW_TOPIC = "/stid/raw"
 FRAMES_TOPIC = "/stid/frames"
-FRAME_ENCODING = "stid.frames.v1"
+# Frames and raw bytes are grouped per GROUP_NS of receive time (one message per ~100 ms,
+# not per port read): loading a 10-minute run then steps over ~12k records, not ~60k.
+# Each entry keeps its own receive time as an offset [us] from the message's log time.
+# stid.frames.v2: u32 n, n x u16 length, n x u32 dt_us, then the n frames (without COBS
+# and CRC) back to back: the table up front lets the loader take a message's frames with
+# numpy instead of stepping through them.
+FRAME_ENCODING = "stid.frames.v2"
+FRAME_ENCODING_V1 = "stid.frames.v1"  # older logs: (u16 length, frame) repeated, one message per read
+RAW_ENCODING = "stid.raw.v2"  # u32 n, n x u32 length, n x u32 dt_us, then the n reads back to back
+RAW_ENCODING_V1 = "stid.raw"  # older logs: one message per read
+GROUP_NS = 100_000_000
 PROFILE = "stid"
+JSON_SAFE = 1 << 53
+# Channel metadata of /stid/samples: its messages are written in chunks of their own, never
+# mixed with other channels, so a loader that does not need them skips a whole chunk at once
+# (after its CRC) instead of stepping over 600k records of a 10-minute run.
+OWN_CHUNKS = {"stid.chunks": "own"}
+SI_BATCH = 5000  # per-sample messages held before they are written as their own chunk(s)  # JavaScript (Foxglove) reads integers exactly only up to here
 
 
 class McapLog:
     """Write a run. Every write goes to the open chunk; ``flush`` makes it durable."""
 
-    def __init__(self, path, fsync: bool = True):
+    def __init__(self, path, fsync: bool = True, chunk_size: int = 256 * 1024):
         self.path = str(path)
         self._f = open(self.path, "wb")
         self._fsync = fsync
-        self._w = Writer(self._f, chunk_size=256 * 1024, compression=CompressionType.ZSTD)
+        # the data section CRC covers the records outside chunks (metadata), which have none
+        self._w = Writer(self._f, chunk_size=chunk_size, compression=CompressionType.ZSTD,
+                         enable_data_crcs=True)
         self._w.start(profile=PROFILE, library="stid-log")
         self._ch = {}
         self._seq = {}
         for key, (topic, schema) in TOPICS.items():
             sid = self._w.register_schema(schema, "jsonschema", json.dumps(SCHEMAS[schema]).encode())
-            self._ch[key] = self._w.register_channel(topic, "json", sid)
-        self._ch["raw"] = self._w.register_channel(RAW_TOPIC, "stid.raw", 0)
+            self._ch[key] = self._w.register_channel(topic, "json", sid, OWN_CHUNKS if key == "samples" else {})
+        self._ch["raw"] = self._w.register_channel(RAW_TOPIC, RAW_ENCODING, 0)
         self._ch["frames"] = self._w.register_channel(FRAMES_TOPIC, FRAME_ENCODING, 0)
         for key in self._ch:
             self._seq[key] = 0
         self._last_flush = time.monotonic()
+        self._si: list = []  # (json line, log time) waiting to be written as their own chunk
+        self._groups: dict = {}  # key -> [first log time, entry parts] of the open frames/raw group
         self.closed = False
 
     def _add(self, key: str, data: bytes, log_ns: int) -> None:
@@ -90,19 +181,66 @@ class McapLog:
                             sequence=self._seq[key] & 0xFFFFFFFF)
 
     def raw(self, data: bytes, log_ns: int) -> None:
-        self._add("raw", data, log_ns)
+        self._group("raw", log_ns, [data])
 
     def frames(self, payloads: list[bytes], log_ns: int) -> None:
-        # one message per port read: u16 length + payload, repeated (stid.frames.v1)
-        self._add("frames", b"".join(len(pl).to_bytes(2, "little") + pl for pl in payloads), log_ns)
+        self._group("frames", log_ns, payloads)
+
+    def _group(self, key: str, log_ns: int, items: list) -> None:
+        g = self._groups.get(key)
+        if g is not None and log_ns - g[0] >= GROUP_NS:
+            self._write_group(key)
+            g = None
+        if g is None:
+            g = self._groups[key] = (log_ns, [], [])
+        dt = max(0, (log_ns - g[0]) // 1000)
+        g[1].extend(items)
+        g[2].extend([dt] * len(items))
+
+    def _write_group(self, key: str) -> None:
+        g = self._groups.pop(key, None)
+        if g is None:
+            return
+        t0, items, dts = g
+        width = "<u2" if key == "frames" else "<u4"
+        head = (len(items).to_bytes(4, "little") + np.array([len(x) for x in items], width).tobytes()
+                + np.array(dts, "<u4").tobytes())
+        self._add(key, head + b"".join(items), t0)
+
+    def _write_groups(self) -> None:
+        for key in list(self._groups):
+            self._write_group(key)
 
     def json(self, key: str, doc: dict, log_ns: int) -> None:
         self._add(key, json.dumps(doc, separators=(",", ":")).encode(), log_ns)
+
+    def sample_messages(self, lines: list[bytes], log_ns) -> None:
+        """Per-sample JSON messages (already encoded), each at its own log time; written
+        at the next flush (or every SI_BATCH) in chunks of their own (OWN_CHUNKS)."""
+        self._si.extend(zip(lines, log_ns))
+        if len(self._si) >= SI_BATCH:
+            self._write_si()
+
+    def _write_si(self) -> None:
+        if not self._si:
+            return
+        self._w.flush()  # close the chunk of the other channels first
+        ch = self._ch["samples"]
+        seq = self._seq["samples"]
+        add = self._w.add_message
+        for line, t in self._si:
+            seq += 1
+            add(ch, log_time=t, data=line, publish_time=t, sequence=seq & 0xFFFFFFFF)
+        self._seq["samples"] = seq
+        self._si.clear()
+        self._w.flush()
 
     def metadata(self, name: str, doc: dict) -> None:
         self._w.add_metadata(name, {k: (v if isinstance(v, str) else json.dumps(v)) for k, v in doc.items()})
 
     def flush(self) -> None:
+        self._write_groups()
+        self._write_si()
         self._w.flush()
         if self._fsync:
             os.fsync(self._f.fileno())
@@ -116,6 +254,8 @@ class McapLog:
         if self.closed:
             return
         self.closed = True
+        self._write_groups()
+        self._write_si()
         self._w.finish()
         self._f.flush()
         if self._fsync:

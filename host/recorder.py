@@ -2,6 +2,12 @@
 
 Used by ``stid-log`` on a serial port and by the simulator's fast mode on the
 firmware's byte stream, so both produce the same files.
+
+Besides the exact frames, every sample goes to ``/stid/samples`` as one JSON
+message in SI units at its own instant on the host clock (the clock model), which
+is what a viewer such as Foxglove plots. Converting needs the HELLO: samples that
+arrive before the first HELLO wait for it (at most ``PENDING_MAX`` of them), so a
+HELLO lost on the link costs the viewer nothing once any later one gets through.
 """
 
 from __future__ import annotations
@@ -9,12 +15,13 @@ from __future__ import annotations
 import numpy as np
 
 from host import protocol as p
-from host import units
 from host.clock import ClockModel, TickUnwrapper
 from host.frame_decoder import FrameDecoder
 from host.mcap_log import McapLog
+from host.si_view import SiView
 
 UNKNOWN_BOOT = "?"
+PENDING_MAX = 60_000  # samples held for the SI view while no HELLO has come (a minute at 1 kHz)
 
 
 class _Boot:
@@ -27,6 +34,9 @@ class _Boot:
         self.fit: dict | None = None
         self.frames = 0
         self.overruns = 0
+        self.missed = 0  # timer periods the firmware could not sample (protocol 3 STATUS)
+        self.si: SiView | None = None  # the SI converter, once this boot's HELLO is known
+        self.t0_us: int | None = None  # first sample's MCU time: the SI view's t = 0
 
     def clock_fit(self) -> dict:
         # refitting is a least-squares solve: do it every 50 frames, not every frame
@@ -50,6 +60,11 @@ class Recorder:
         self.last_status: dict | None = None
         self.latest = {"ay": float("nan"), "r": float("nan")}
         self.gaps: list[dict] = []
+        self.uids: list[str] = []  # board uids seen in HELLOs, in order
+        self._pending: list = []  # (boot, raw samples, t_mcu, log_ns) waiting for a HELLO
+        self._pending_n = 0
+        self.supplied_hello: dict | None = None
+        self.last_host_ns: int | None = None  # a HELLO from elsewhere, used only if none arrives
 
     @property
     def stats(self):
@@ -64,6 +79,7 @@ class Recorder:
         """
         if not data:
             return
+        self.last_host_ns = host_ns
         self.log.raw(data, host_ns)
         frames = self.decoder.feed(data)
         if not frames:
@@ -92,19 +108,32 @@ class Recorder:
 
     def _other(self, fr, host_ns: int) -> None:
         if fr.type == p.HELLO:
-            doc = fr.hello()
+            try:
+                doc = fr.hello()
+            except (ValueError, UnicodeDecodeError, KeyError, TypeError):  # passed the CRC, yet unreadable
+                self.stats.errors["hello"] += 1
+                return
             bid = str(doc.get("boot_id", UNKNOWN_BOOT))
             if bid != self.boot.id:
                 self._new_boot(bid, host_ns, "hello")
-            if self.boot.hello is None:
+            uid = doc.get("uid")
+            if uid and uid not in self.uids:
+                self.uids.append(uid)
+            first = self.boot.hello is None
+            if first:
                 self.boot.hello = doc
+                self.boot.si = SiView(doc)
                 self.log.metadata("stid.hello", {**doc, "boot_id": bid})
             self.hello = doc
             self.log.json("hello", doc, host_ns)
+            if first:
+                self._release_pending()
         elif fr.type == p.STATUS:
             st = fr.status()
             self.last_status = st
             self.boot.overruns = st["overruns"]  # the firmware's own count since boot
+            if st.get("missed") is not None:
+                self.boot.missed = st["missed"]  # index advanced, no sample: a gap the car knows of
             self.log.json("status", {**st, "boot": self.boot.id, "seq": fr.seq}, host_ns)
 
     def _samples(self, frames, host_ns: int) -> None:
@@ -134,16 +163,47 @@ class Recorder:
         log_ns = np.minimum((b.clock.to_host_us(t_mcu, fit) * 1000).astype(np.int64), host_ns)
         index = (np.repeat(np.asarray(first, dtype=np.int64), counts)
                  + np.arange(len(arr)) - np.repeat(np.cumsum([0] + counts[:-1]), counts)) % p.MOD
-        doc = {"boot": b.id, "n": len(arr), "index": index.tolist(), "t_mcu_us": t_mcu.tolist(),
-               "t_host_ns": log_ns.tolist()}
-        four = any(f.type == p.SAMPLES4 for f in frames)
-        for name in p.SAMPLE_FIELDS[1:]:
-            if four or not name.startswith("wheel") or name in ("wheel_count", "wheel_t_us"):
-                doc[name] = arr[name].tolist()
-        self.log.json("samples", doc, int(log_ns[0]))
-        if self.hello:
-            self.latest["ay"] = float(units.accel_si(arr["ay"][-1:], self.hello)[0])
-            self.latest["r"] = float(units.yaw_rate_si(arr["yaw"][-1:], self.hello)[0])
+        if b.t0_us is None:
+            b.t0_us = int(t_mcu[0])
+        if b.si is not None:
+            self._write_si(b, arr, index, t_mcu, log_ns)
+        elif self._pending_n < PENDING_MAX:
+            self._pending.append((b, arr, index, t_mcu, log_ns))
+            self._pending_n += len(arr)
+
+    def _write_si(self, b: _Boot, arr, index, t_mcu, log_ns) -> None:
+        lines = b.si.lines(b.id, arr, index, t_mcu, b.t0_us)
+        self.log.sample_messages(lines, log_ns.tolist())
+        self.latest["ay"], self.latest["r"] = b.si.latest
+
+    def _release_pending(self) -> None:
+        """Samples that came before their boot's HELLO, now that it is known."""
+        keep = []
+        for item in self._pending:
+            if item[0].si is not None:
+                self._write_si(*item)
+            else:
+                keep.append(item)
+        self._pending = keep
+        self._pending_n = sum(len(it[1]) for it in keep)
+
+    def supply_hello(self, doc: dict, source: str) -> None:
+        """A HELLO from elsewhere (an earlier log of the same board, a vehicle file) for a
+        run in which none arrived: written as such, with where it came from."""
+        doc = {**doc, "supplied_from": source}
+        self.supplied_hello = doc
+        for b in self.boots:
+            if b.hello is None:
+                b.hello = doc
+                b.si = SiView(doc)
+        self.hello = doc
+        self.log.metadata("stid.hello", {**doc, "boot_id": self.boot.id})
+        self.log.json("hello", doc, self.last_host_ns or 0)
+        self._release_pending()
+
+    @property
+    def hello_seen(self) -> bool:
+        return any(b.hello is not None and "supplied_from" not in b.hello for b in self.boots)
 
     def event(self, name: str, host_ns: int, detail: str = "") -> None:
         self.log.json("events", {"event": name, "detail": detail, "boot": self.boot.id}, host_ns)
@@ -151,13 +211,16 @@ class Recorder:
     def stats_doc(self) -> dict:
         d = self.stats.as_dict()
         d.update({"samples": self.samples, "missing_samples": self.missing_samples,
-                  "mcu_overruns": sum(b.overruns for b in self.boots), "gaps": self.gaps})
+                  "mcu_overruns": sum(b.overruns for b in self.boots),
+                  "mcu_missed": sum(b.missed for b in self.boots), "gaps": self.gaps,
+                  "hello_seen": self.hello_seen})
         return d
 
     def write_stats(self, host_ns: int) -> None:
         self.log.json("stats", self.stats_doc(), host_ns)
 
     def finish(self, host_ns: int) -> dict:
+        self._pending.clear()  # no HELLO came: their frames are in /stid/frames, the SI view cannot be
         stats = self.stats_doc()
         self.log.json("stats", stats, host_ns)
         self.log.metadata("stid.stats", stats)

@@ -20,6 +20,9 @@ OPTIONAL = ("ax", "beta", "delta_cmd", "w_fl", "w_fr", "w_rl", "w_rr")
 # Lost frames up to this long are marked (``Run.valid``) and left out of every cost, the
 # model running through them; a longer gap splits the run (the input there is unknown).
 MAX_FILLED_GAP_S = 0.1
+# A sample farther than this share of a period from its grid instant is "off the grid" (soft timer):
+# 5% of 2 ms is 100 µs, a phase error of 0.3° at 10 Hz -- below what any fit can see.
+OFF_GRID_TOLERANCE = 0.05
 MIN_SAMPLES = 20
 
 # Beyond these a value is not physical for a scale car in SI units: most likely degrees.
@@ -142,8 +145,9 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
     if len(s) < MIN_SAMPLES:
         raise InputError(f"{path} holds {len(s)} samples: too few to use (was the logger connected to the car?)")
     if not log.hello:
-        raise InputError(f"{path} has samples but no HELLO frame, so the ADC scale is unknown; "
-                         "log for a few seconds longer (the firmware repeats HELLO every 2 s)")
+        raise InputError(f"{path} has samples but no HELLO frame got through, so the ADC scale is unknown; "
+                         f"supply one from an earlier log of the same board: 'stid repair {path} "
+                         "--hello-from EARLIER.mcap'")
     runs = []
     for k, (a, b) in enumerate(_pieces(s)):
         piece = s[a:b]
@@ -157,6 +161,15 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
         for r in runs:
             r.warn(f"{Path(path).name} was cut short (logger killed?): read up to its last complete chunk; "
                    f"'stid repair' makes it a complete file")
+    damage = log.damage_note()
+    if damage:
+        for r in runs:
+            r.warn(f"{Path(path).name}: {damage}")
+    supplied = log.hello.get("supplied_from")
+    if supplied:
+        for r in runs:
+            r.warn(f"no HELLO was received in {Path(path).name}; its configuration was supplied from "
+                   f"{supplied}")
     for r in runs:
         input_checks.check_kinematics(r, source="mcap")
     return runs
@@ -195,9 +208,16 @@ def _pieces(s):
 def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     hello = log.hello
     t_us = s["t_mcu_us"].astype(np.int64)
-    step = int(np.median(np.diff(t_us)))
-    tu = np.arange(t_us[0], t_us[-1] + 1, step)
-    filled = len(tu) - len(t_us)
+    # The sample grid comes from the firmware's sample index (it advances every timer period,
+    # sampled or missed): a soft timer's late samples and the car's missed periods then land
+    # where they belong, and the grid never runs short of the samples it holds.
+    k = (s["index"].astype(np.int64) - int(s["index"][0])) % int(hello.get("mod", 1 << 30))
+    one = np.diff(k) == 1
+    step = float(np.median(np.diff(t_us)[one])) if one.any() else float(np.median(np.diff(t_us) / np.diff(k)))
+    t0 = float(np.median(t_us - k * step))  # robust to late samples: most are on time
+    tu = t0 + np.arange(int(k[-1]) + 1) * step
+    nearest = k
+    filled = len(tu) - len(np.unique(k))
     ax, ay, az = convert.accelerations(s, hello, vehicle)
     r = convert.yaw_rate(s, hello, vehicle)
     steer = convert.steer_angle(s["steer_us"], vehicle)
@@ -217,11 +237,15 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
         # the rear axle is driven and slips; the free-rolling fronts measure the car's speed
         sig["vx"] = 0.5 * (wheels["w_fl"] + wheels["w_fr"]) * vehicle.wheel_radius
     valid = None
-    if filled:
-        # the grid needs a value at every place; these hold it, and are marked not measured
+    # A hard timer samples within µs of its grid instant; a soft timer (ESP32) runs late, by
+    # milliseconds behind a blocking write. A value is where its t_us says, never where the grid is.
+    off_grid = np.abs(t_us - tu[nearest]).max() > OFF_GRID_TOLERANCE * step
+    if filled or off_grid:
+        # the grid needs a value at every place: interpolated from the samples' true instants;
+        # a grid place no sample is near (a gap) is held and marked not measured
         sig = {k: np.interp(tu, t_us, v) for k, v in sig.items()}
         valid = np.zeros(len(tu), bool)
-        valid[np.clip(np.round((t_us - tu[0]) / step).astype(np.int64), 0, len(tu) - 1)] = True
+        valid[nearest] = True
     timed = False
     if "steer_t_us" in (s.dtype.names or ()):
         exact, timed = convert.steer_at_servo_times(t_us, s["t_us"], s["steer_us"], s["steer_t_us"], vehicle,
@@ -240,6 +264,11 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
         run.meta.setdefault("notes", []).append(
             "steer timed at the sample instants (this log does not carry the servo pulses' edge times, "
             "protocol v1): each steering step sits up to one sample period late")
+    if off_grid:
+        late = np.abs(t_us - tu[nearest])
+        run.meta.setdefault("notes", []).append(
+            f"samples off their nominal instants by up to {late.max() / 1e3:.1f} ms (soft timer?): "
+            "values interpolated to the sample grid from their measured times")
     if filled:
         run.meta.setdefault("notes", []).append(
             f"{filled} samples lost on the link ({100 * filled / len(tu):.1f}%): left out of every fit")
@@ -248,7 +277,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     clip = units.clipped(s["ay"], hello) | units.clipped(s["ax"], hello)
     if clip.any():
         run.warn(f"{int(clip.sum())} accelerometer samples at the ADC limit (clipped)")
-        run.extra["clipped"] = clip.astype(float) if not filled else np.interp(tu, t_us, clip.astype(float))
+        run.extra["clipped"] = clip.astype(float) if valid is None else np.interp(tu, t_us, clip.astype(float))
     bias = convert.gyro_bias_from_still(run.r, run.vx, fs)
     if bias is not None:
         run.r = run.r - bias

@@ -54,20 +54,14 @@ def clean_frames(fault_log):
 
 
 def logged_frames(path):
-    from host.mcap_read import iter_records, split_frames
-    from mcap.records import Channel, Message
+    from host.mcap_read import scan_log, split_frames
 
-    topics, out = {}, []
-    gen = iter_records(path)
-    try:
-        while True:
-            rec = next(gen)
-            if isinstance(rec, Channel):
-                topics[rec.id] = rec.topic
-            elif isinstance(rec, Message) and topics.get(rec.channel_id) == FRAMES_TOPIC:
-                out.extend(split_frames(rec.data))
-    except StopIteration:
-        pass
+    sc = scan_log(path)
+    topics = {cid: c.topic for cid, c in sc.channels.items()}
+    out = []
+    for m in sc.messages:
+        if topics.get(m.channel_id) == FRAMES_TOPIC:
+            out.extend(split_frames(m.data))
     return out
 
 

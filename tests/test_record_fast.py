@@ -40,7 +40,12 @@ def test_counts_exact_and_in_order(tmp_path, board):
     assert len(s) == n_expected == stats["samples"]
     assert np.array_equal(s["index"], np.arange(len(s)))
     t_virtual = s["t_mcu_us"] - start  # unwrapped across the 2^30 wrap
-    assert np.array_equal(np.diff(t_virtual), np.full(len(s) - 1, 1_000_000 // cfg.rate_hz))
+    period = 1_000_000 // cfg.rate_hz
+    if log.hello["timer"] == "hard":
+        assert np.array_equal(np.diff(t_virtual), np.full(len(s) - 1, period))
+    else:  # ESP32: the callback is scheduled, late by up to a frame write, never early or lost here
+        late = t_virtual - (s["index"] + 1) * period
+        assert late.min() >= 0 and late.max() <= max(st["late_max_us"] for _, st in log.status)
     from hil_sim.run import WIRING
 
     wiring = WIRING[board]
@@ -55,8 +60,10 @@ def test_counts_exact_and_in_order(tmp_path, board):
     assert set(np.unique(s["steer_us"][s["steer_us"] > 0]).tolist()) <= widths
     # hall pulses: the count at each sample is the number of edges before it (an edge in the
     # same microsecond as the timer comes after the sample: the board fires the timer first)
+    # (a scheduled ESP32 sample runs after every interrupt of its microsecond: "right")
     edges = run.stimulus.hall_t_us
-    assert np.array_equal(s["wheel_count"], np.searchsorted(edges, t_virtual, side="left") % 65536)
+    side = "left" if log.hello["timer"] == "hard" else "right"
+    assert np.array_equal(s["wheel_count"], np.searchsorted(edges, t_virtual, side=side) % 65536)
     assert stats["lost_frames"] == 0 and sum(stats["errors"].values()) == 0
 
 
@@ -84,15 +91,25 @@ def test_file_opens_in_the_official_mcap_reader(tmp_path):
         assert {"/stid/raw", "/stid/frames", "/stid/samples", "/stid/status", "/stid/hello",
                 "/stid/stats"} <= topics
         schemas = {s.name: s for s in summary.schemas.values()}
-        assert schemas["stid.Samples"].encoding == "jsonschema"
+        assert schemas["stid.Sample"].encoding == "jsonschema"
         n = 0
         for schema, channel, msg in reader.iter_messages(topics=["/stid/samples"]):
-            doc = json.loads(msg.data)
-            assert len(doc["ay"]) == doc["n"] == len(doc["t_mcu_us"])
-            n += doc["n"]
-        assert n > 0
+            doc = json.loads(msg.data)  # one sample per message, in SI units
+            assert isinstance(doc["ay"], float) and isinstance(doc["index"], int)
+            n += 1
+        assert n == len(read_log(tmp_path / "run.mcap").samples)
         names = {m.name for m in reader.iter_metadata()}
         assert {"stid.hello", "stid.stats", "stid.clock"} <= names
+        # the real firmware's HELLO, STATUS and the logger's events and stats fit their schemas
+        import jsonschema
+
+        validators = {}
+        for schema, channel, msg in reader.iter_messages():
+            if channel.message_encoding == "json":
+                if schema.id not in validators:
+                    validators[schema.id] = jsonschema.Draft7Validator(json.loads(schema.data))
+                validators[schema.id].validate(json.loads(msg.data))
+        assert len(validators) == 5
 
 
 def test_clock_model_recovers_offset_and_no_drift(tmp_path):
