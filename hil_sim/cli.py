@@ -17,6 +17,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "With --fast -o RUN.mcap it records faster than real time instead.")
     ap.add_argument("--manoeuvre", default="random_steer", choices=manoeuvres.MANOEUVRES)
     ap.add_argument("--effects", default="", help="comma-separated hidden effects: " + ", ".join(vehicle.EFFECT_NAMES))
+    ap.add_argument("--effect-file", action="append", default=[], metavar="FILE",
+                    help="hide your own effect: a Python file defining steer_angle, body_loads and/or "
+                         "sensor_signals (see hil_sim/effect_file.py; repeatable)")
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of manoeuvre (plus still and run-up)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--speed", type=float, default=4.0, help="m/s")
@@ -74,8 +77,13 @@ def config_from_args(args):
     plan = manoeuvres.Plan(name=args.manoeuvre, duration=args.duration, speed=args.speed,
                            steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still,
                            speed_profile=args.speed_profile, speed_swing=args.speed_swing)
-    return SimConfig(plan=plan, effects=effects, seed=args.seed, board=args.board, rate_hz=args.rate,
-                     batch=args.batch, start_ticks=args.start_ticks, stalls=tuple(stalls),
+    from hil_sim.effect_file import load_effect_file
+
+    for f in args.effect_file:  # fail here, before any simulation, on a file that cannot work
+        load_effect_file(f)
+    return SimConfig(plan=plan, effects=effects, effect_files=tuple(args.effect_file), seed=args.seed,
+                     board=args.board, rate_hz=args.rate, batch=args.batch, start_ticks=args.start_ticks,
+                     stalls=tuple(stalls),
                      wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)
 
 

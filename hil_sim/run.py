@@ -26,6 +26,7 @@ WIRING = {
 class SimConfig:
     plan: manoeuvres.Plan = field(default_factory=manoeuvres.Plan)
     effects: tuple = ()
+    effect_files: tuple = ()  # paths of users' truth-side effects (hil_sim.effect_file)
     seed: int = 0
     board: str = "pico"
     rate_hz: int = 500
@@ -54,6 +55,7 @@ class SimRun:
         c = self.cfg
         return {
             "car": c.car.as_dict(), "sensors": c.sens.as_dict(), "effects": sorted(c.effects),
+            "effect_files": [str(f) for f in c.effect_files],
             "manoeuvre": asdict(c.plan), "seed": c.seed, "board": c.board, "rate_hz": c.rate_hz,
             "wiring": WIRING[c.board], "wheel_speeds": c.wheel_speeds, "wheel_ppr": c.wheel_ppr,
         }
@@ -62,7 +64,9 @@ class SimRun:
 def simulate_run(cfg: SimConfig) -> SimRun:
     if cfg.board not in WIRING:
         raise ValueError(f"unknown board {cfg.board!r}; choose one of {', '.join(WIRING)}")
-    effects = vehicle.Effects(set(cfg.effects))
+    from hil_sim.effect_file import load_effect_file
+
+    effects = vehicle.Effects(set(cfg.effects), tuple(load_effect_file(f) for f in cfg.effect_files))
     rng = np.random.default_rng(cfg.seed)
     man = manoeuvres.build(cfg.plan, cfg.dt, rng)
     driver = None

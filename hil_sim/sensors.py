@@ -60,9 +60,13 @@ def body_signals(traj: Trajectory, car: CarParams, effects: Effects, t_start_bia
     if tg is None:
         t = traj.t
         sig = {"ax": traj.ax, "ay": traj.ay, "r": traj.r, "r_dot": traj.r_dot, "phi": traj.phi}
+        if "sensor_delay" in effects:  # the motion delay_s ago (held at the start)
+            sig = {k: np.interp(t - car.sensor_delay_s, t, v) for k, v in sig.items()}
     else:
         t = tg
-        sig = traj.dense(tg)
+        # sensor_delay: the accelerometer and gyro outputs reach the ADC late (a sensor board's
+        # digital filter or FIFO): what they show now is the motion of delay_s ago
+        sig = traj.dense(tg - car.sensor_delay_s if "sensor_delay" in effects else tg)
     ax = sig["ax"].copy()
     ay = sig["ay"].copy()
     r = sig["r"].copy()
@@ -80,6 +84,10 @@ def body_signals(traj: Trajectory, car: CarParams, effects: Effects, t_start_bia
         ramp = np.clip((t - t_start_bias) / car.bias_ramp_s, 0, 1)
         r = r + car.bias_r * ramp
         ay = ay + car.bias_ay * ramp
+    for e in effects.custom:  # a user's truth-side effect (hil_sim.effect_file)
+        if e.sensor_signals is not None:
+            out = e.sensor_signals(t, {"ax": ax, "ay": ay, "az": az, "r": r}, car)
+            ax, ay, az, r = (np.asarray(out[k], float) for k in ("ax", "ay", "az", "r"))
     return ax, ay, az, r
 
 

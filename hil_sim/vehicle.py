@@ -7,7 +7,12 @@ hall sensor). ISO 8855 axes: x forward, y left, z up; left turns positive.
 
 Effects are switched on one by one (``Effects``); with all of them off the truth
 is the linear single-track model with a speed controller, so an identifier that
-fits that model should recover Cf, Cr and Iz exactly up to noise.
+fits that model should recover Cf, Cr and Iz exactly up to noise. A user's own
+truth-side effect (``hil_sim.effect_file``) adds its hooks through ``Effects.custom``.
+
+The steering linkage and the locked differential are solved here as mechanisms (a
+four-bar per wheel, the rear wheels' longitudinal slips), not as the identifier's
+formulas, so the identifier is tested against physics and not against itself.
 
 This module is the simulator's own physics. It must not import ``stid``: a hidden
 effect is only a test if the identifier was written without this code.
@@ -23,7 +28,8 @@ import numpy as np
 G = 9.81
 
 EFFECT_NAMES = ("actuator_lag", "tyre_relaxation", "body_roll", "accel_offset",
-                "tyre_saturation", "sensor_bias", "vibration")
+                "tyre_saturation", "sensor_bias", "vibration", "steering_nonlinearity", "locked_diff",
+                "sensor_delay")
 
 
 @dataclass
@@ -61,6 +67,16 @@ class CarParams:
     bias_r: float = 0.03  # rad/s gyro bias appearing after start-up (~1.7 deg/s)
     bias_ay: float = 0.25  # m/s^2 accelerometer y bias appearing after start-up
     bias_ramp_s: float = 4.0  # s, how fast the thermal bias drifts in after the still phase
+    # steering linkage (steering_nonlinearity), top view: the servo horn's tip drives both tie
+    # rods; each steering arm sits behind its kingpin, angled inward (Ackermann). A short horn
+    # on long arms (a slow ratio: ~55 deg of servo for 18 deg at the wheels) makes the road-wheel
+    # angle fall behind the command at large angles
+    steer_horn: float = 0.006  # m, servo horn (servo saver) radius to the tie-rod ball
+    steer_arm: float = 0.020  # m, steering arm length, kingpin to tie-rod ball
+    steer_ackermann_deg: float = 15.0  # deg, steering arms' inward angle
+    steer_servo_x: float = -0.03  # m, servo shaft behind the front axle
+    kingpin_inset: float = 0.015  # m, kingpins inboard of the wheel centres
+    sensor_delay_s: float = 0.02  # s, accelerometer and gyro reach the ADC late (sensor_delay)
     # steering servo pulse: centre and gain from road-wheel angle (500 us per 25 deg)
     steer_center_us: float = 1500.0
     steer_us_per_rad: float = 500.0 / math.radians(25.0)
@@ -86,6 +102,7 @@ class CarParams:
 @dataclass
 class Effects:
     on: set = field(default_factory=set)
+    custom: tuple = ()  # truth-side effects of users (hil_sim.effect_file.TruthEffect)
 
     def __post_init__(self):
         unknown = set(self.on) - set(EFFECT_NAMES)
@@ -172,12 +189,19 @@ class Trajectory:
 
 def wheel_speeds(traj: "Trajectory", car: "CarParams"):
     """Angular speeds [rad/s] of fl, fr, rl, rr. Front wheels roll freely; the driven rear
-    wheels slip by s = Fx / Cx (quasi-static: the wheel's spin-up is far faster than the car)."""
+    wheels slip by s = Fx / Cx (quasi-static: the wheel's spin-up is far faster than the car),
+    or, with a locked differential, turn together at the speed that delivers Fx."""
     R, h = car.wheel_radius, car.track / 2
     s = traj.Fx / car.Cx
     out = []
     for side, slip in ((-1, 0.0), (1, 0.0), (-1, s), (1, s)):
         out.append(np.maximum(traj.vx + side * h * traj.r, 0.0) * (1 + slip) / R)
+    if getattr(traj, "spool", False):
+        vl = np.maximum(traj.vx - h * traj.r, 0.1)
+        vr = np.maximum(traj.vx + h * traj.r, 0.1)
+        w = (traj.Fx / (car.Cx / 2) + 2.0) / (1.0 / vl + 1.0 / vr) / R
+        w = np.where(traj.vx > 0.3, w, out[2])
+        out[2], out[3] = w, w.copy()
     return out
 
 
@@ -188,6 +212,56 @@ def servo_rise_times_us(car: "CarParams", duration_s: float, rng: np.random.Gene
     n = int((duration_s * 1e6 - car.servo_phase_us) // period) + 1
     t = car.servo_phase_us + np.arange(max(n, 1)) * period + car.servo_jitter_us * rng.standard_normal(max(n, 1))
     return np.round(np.maximum(t, 0)).astype(np.int64)
+
+
+def _wheel_angle(servo: float, side: int, car: CarParams) -> float:
+    """One front wheel's steer angle [rad] for the servo horn angle ``servo`` [rad]: the
+    four-bar horn - tie rod - steering arm, solved exactly (circle intersection). side +1
+    is the left wheel, -1 the right; the tie rod's length makes both wheels straight at
+    servo angle 0."""
+    w = car.track / 2 - car.kingpin_inset
+    beta = math.radians(car.steer_ackermann_deg)
+    ra, rs = car.steer_arm, car.steer_horn
+    ux, uy = -math.cos(beta), -side * math.sin(beta)  # arm direction at straight ahead
+    phi0 = math.atan2(uy, ux)
+    hx0 = car.steer_servo_x - rs
+    tie = math.hypot(ra * ux - hx0, side * w + ra * uy)
+    hx, hy = car.steer_servo_x - rs * math.cos(servo), -rs * math.sin(servo)
+    dx, dy = hx, hy - side * w  # horn tip relative to the kingpin
+    dist = math.hypot(dx, dy)
+    c = max(-1.0, min(1.0, (ra * ra + dist * dist - tie * tie) / (2 * ra * dist)))
+    psi = math.atan2(dy, dx)
+    # the branch the linkage is assembled in: the one through the straight-ahead arm
+    c0 = (ra * ra + hx0 * hx0 + w * w - tie * tie) / (2 * ra * math.hypot(hx0, w))
+    psi0 = math.atan2(-side * w, hx0)
+    sgn = 1.0 if abs(math.remainder(psi0 + math.acos(max(-1.0, min(1.0, c0))) - phi0, 2 * math.pi)) < 1e-6 else -1.0
+    return math.remainder(psi + sgn * math.acos(c) - phi0, 2 * math.pi)
+
+
+def linkage_ratio(car: CarParams) -> float:
+    """Road-wheel angle per servo angle at straight ahead (the single track's: mean of both wheels)."""
+    h = 1e-6
+    return sum(_wheel_angle(s * h, side, car) * s for s in (1, -1) for side in (1, -1)) / (4 * h)
+
+
+def road_wheel_angle(servo_cmd: float, car: CarParams, ratio: float) -> float:
+    """Single-track road-wheel angle (mean of left and right) for the servo output expressed
+    as the road-wheel angle its pulse calibration promises (``servo_cmd`` / ``ratio`` is the
+    horn angle): equal to it at small angles, not at large ones."""
+    servo = servo_cmd / ratio
+    return 0.5 * (_wheel_angle(servo, 1, car) + _wheel_angle(servo, -1, car))
+
+
+def spool_moment(vx: float, r: float, Fx: float, car: CarParams) -> float:
+    """Yaw moment [N m] of a locked rear axle: both wheels turn at one speed omega, so the
+    inner and outer wheels slip differently. Each wheel's force is Cx/2 times its slip
+    (omega R - v)/v at its own ground speed v = vx -+ r t/2; omega follows from the drive
+    force the axle must deliver (quasi-static: the wheels spin up far faster than the car)."""
+    h = car.track / 2
+    vl, vr = max(vx - h * r, 0.1), max(vx + h * r, 0.1)
+    cw = car.Cx / 2
+    wR = (Fx / cw + 2.0) / (1.0 / vl + 1.0 / vr)
+    return h * (cw * (wR / vr - 1.0) - cw * (wR / vl - 1.0))
 
 
 def _mf(alpha, C, Fz, mu, shape):
@@ -218,6 +292,11 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     relax = "tyre_relaxation" in effects
     roll = "body_roll" in effects
     sat = "tyre_saturation" in effects
+    linkage = "steering_nonlinearity" in effects
+    spool = "locked_diff" in effects
+    ratio = linkage_ratio(car) if linkage else 1.0
+    steer_hooks = [e.steer_angle for e in effects.custom if e.steer_angle is not None]
+    body_hooks = [e.body_loads for e in effects.custom if e.body_loads is not None]
     wn = 2 * math.pi * car.roll_freq
     zeta = car.roll_damping
     k_speed = 4.0  # 1/s, speed loop gain (throttle driver)
@@ -238,6 +317,11 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
         else:
             ddelta = 0.0
             delta = dcmd
+        servo = delta  # the servo's output, in the road-wheel radians its calibration promises
+        if linkage:
+            delta = road_wheel_angle(servo, car, ratio)
+        for hook in steer_hooks:
+            delta = float(hook(delta, car))
         Ff_ss, Fr_ss = side_forces_ss(vx, vy, r, delta)
         if relax:
             vxe = max(vx, 0.3)
@@ -254,10 +338,17 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
         Fx = max(-m * 6.0, min(m * 6.0, Fx))
         if vx <= 0.0 and Fx < 0.0:
             Fx = 0.0
+        Fy_x, Mz_x = 0.0, 0.0
+        if spool and vx > 0.3:
+            Mz_x += spool_moment(vx, r, Fx, car)
+        for hook in body_hooks:
+            f, mz = hook({"vx": vx, "vy": vy, "r": r, "delta": delta}, car)
+            Fy_x += float(f)
+            Mz_x += float(mz)
         cd, sd = math.cos(delta), math.sin(delta)
         dvx = (Fx - Fyf * sd) / m + vy * r
-        dvy = (Fyf * cd + Fyr) / m - vx * r
-        dr = (a * Fyf * cd - b * Fyr) / Iz
+        dvy = (Fyf * cd + Fyr + Fy_x) / m - vx * r
+        dr = (a * Fyf * cd - b * Fyr + Mz_x) / Iz
         ay = dvy + vx * r
         if roll:
             dphid = -2 * zeta * wn * phid - wn * wn * (phi - car.roll_gain * ay)
@@ -351,4 +442,5 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
                     x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6], states=out, rhs=rhs,
                     steer_rise_us=rise, switches=switches)
     tr.v_ref = np.asarray(v_ref, float)
+    tr.spool = spool
     return tr

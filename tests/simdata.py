@@ -46,3 +46,17 @@ def random_steer_pair(root: Path, effects=(), seeds=(1, 2), **kw) -> list[Path]:
     """The standard data set: random steer at 4 and 6 m/s, 40 s each."""
     return [sim_run(root, "random_steer", effects, seed=seeds[0], speed=4.0, **kw),
             sim_run(root, "random_steer", effects, seed=seeds[1], speed=6.0, **kw)]
+
+
+def effect_file_run(root: Path, effect_file: Path, seed: int = 1, speed: float = 4.0, duration: float = 40.0,
+                    steer_amp: float = 0.04, bandwidth: float = 4.0) -> Path:
+    """A random-steer run with a user's truth-side effect file hidden in the car (stid-sim --effect-file)."""
+    key = ("effect_file", str(effect_file), seed, speed, duration, steer_amp, bandwidth)
+    if key in _CACHE:
+        return _CACHE[key]
+    mcap = root / f"random_steer_{Path(effect_file).stem}_{seed}_{speed}_{abs(hash(key)) % 10**8}.mcap"
+    cfg = SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp,
+                              bandwidth=bandwidth), effect_files=(str(effect_file),), seed=seed)
+    record(cfg, mcap, truth_path=Path(str(mcap).rsplit(".", 1)[0] + ".truth.json"))
+    _CACHE[key] = mcap
+    return mcap

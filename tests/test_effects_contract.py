@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO
-from stid.models.effect import available_effects, unregister_effect
+from stid.models.effect import STAGES, available_effects, unregister_effect
 from stid.models.model import Model
 from stid.vehicle_file import load_vehicle
 
@@ -16,7 +16,17 @@ DOC = (REPO / "docs" / "writing_an_effect.md").read_text()
 
 
 def _doc_effect_code() -> str:
-    return re.findall(r"```python\n(.*?)```", DOC, re.S)[0]
+    return (REPO / "docs" / "examples" / "gyro_scale.py").read_text()
+
+
+def test_the_tutorials_code_blocks_are_its_files_verbatim():
+    """Each code block the tutorial marks with an include line is that file, or a contiguous
+    excerpt of it (so the page cannot drift from the code the tests run)."""
+    blocks = re.findall(r"<!-- include: (\S+) -->\n```\w+\n(.*?)```", DOC, re.S)
+    assert len(blocks) >= 4
+    for path, text in blocks:
+        assert text in (REPO / path).read_text(), f"docs/writing_an_effect.md: the block from {path} differs"
+    assert len(re.findall(r"```(?:python|sh)\n", DOC)) == len(blocks), "a code block without its include line"
 
 
 @pytest.fixture
@@ -37,7 +47,7 @@ def _steer(n=1500, dt=0.01):
 def _check_contract(name):
     cls = available_effects()[name]
     assert cls.name == name and cls.physics and cls.signature
-    assert cls.stage in ("input", "tyre", "output")
+    assert cls.stage in STAGES
     for p in cls.params:
         assert p.unit and p.doc
         lo, hi = p.value("lower", VEHICLE), p.value("upper", VEHICLE)
@@ -77,7 +87,7 @@ def _check_contract(name):
         for h in (1e-3, 1e-4):
             hp, hm = dict(p), dict(p)
             hp[q.name], hm[q.name] = v * (1 + h), v * (1 - h)
-            if model.nonlinear:
+            if model.nonlinear or any(e.maps_steer for e in model.effects):
                 d.append((model.simulate(hp, u, dt, 5.0) - model.simulate(hm, u, dt, 5.0)) / (2 * h * v))
             else:
                 d.append((model.freqresp(hp, f, 5.0) - model.freqresp(hm, f, 5.0)) / (2 * h * v))
@@ -97,30 +107,47 @@ def test_a_user_defined_effect_keeps_the_contract(gyro_scale):
 
 def test_the_catalogue_holds_at_least_the_designed_effects():
     assert {"tyre_relaxation", "actuator_lag", "accel_offset", "body_roll", "tyre_saturation",
-            "sensor_bias"} <= set(available_effects())
+            "sensor_bias", "steering_nonlinearity", "locked_diff", "sensor_delay"} <= set(available_effects())
 
 
-def test_a_user_defined_effect_is_found_when_hidden(simdir, gyro_scale, tmp_path):
-    """The doc's GyroScale, hidden in simulated runs (their yaw rate reads 6% high), is named
-    by diagnose with no other change, and the error falls when it is added."""
-    import pandas as pd
+def _tutorial_commands():
+    lines = (REPO / "docs" / "examples" / "tutorial.sh").read_text().splitlines()
+    return [ln for ln in lines if ln.strip() and not ln.startswith("#")]
 
-    from simdata import random_steer_pair
-    from stid.diagnose import diagnose
-    from stid.fit.fitting import fit
-    from stid.load import load_runs
 
-    paths = []
-    for src in random_steer_pair(simdir, csv=True):
-        df = pd.read_csv(src)
-        df["r"] *= 1.06
-        out = tmp_path / src.name
-        df.to_csv(out, index=False)
-        paths.append(out)
-    runs = load_runs(paths, VEHICLE)
-    plain = fit(runs, VEHICLE, "bicycle")
-    scaled = fit(runs, VEHICLE, "bicycle+gyro_scale")
-    assert scaled.fit["r"] > plain.fit["r"] + 1.0
-    assert scaled.value("gyro_scale_err") == pytest.approx(0.06, abs=0.01)
-    (d,) = diagnose(runs, VEHICLE, "bicycle")
-    assert d.best is not None and d.best.effect == "gyro_scale", [(c.effect, c.significant) for c in d.candidates]
+def _fit_line(out: str) -> dict:
+    m = re.search(r"fit: ay ([0-9.]+)%\s+r ([0-9.]+)%", out)
+    assert m, out
+    return {"ay": float(m.group(1)), "r": float(m.group(2))}
+
+
+def test_the_tutorial_runs_end_to_end_and_the_error_falls(tmp_path):
+    """docs/writing_an_effect.md as a user runs it: its commands, one process each, in a
+    fresh directory, with the tools on PATH; the effect hidden with stid-sim --effect-file
+    is not in the catalogue, is named once the user's file is loaded, and the error falls."""
+    import os
+    import shlex
+    import subprocess
+    import sys
+
+    (tmp_path / "docs").symlink_to(REPO / "docs")
+    env = dict(os.environ, PATH=f"{os.path.dirname(sys.executable)}{os.pathsep}{os.environ.get('PATH', '')}")
+    env.pop("STID_EFFECTS", None)
+    outs = []
+    for cmd in _tutorial_commands():
+        words = shlex.split(cmd)
+        if words[0] == "export":
+            k, v = words[1].split("=", 1)
+            env[k] = v
+            continue
+        r = subprocess.run(words, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, (cmd, r.stderr)
+        outs.append((cmd, r.stdout))
+    diag_without, diag_with, fit_plain, fit_mine = (o for c, o in outs if c.startswith("stid ") and "diagnose" in c
+                                                    or c.startswith("stid fit"))
+    assert "gyro_scale" not in diag_without
+    assert "gyro_scale" in diag_with
+    before, after = _fit_line(fit_plain), _fit_line(fit_mine)
+    assert after["r"] > before["r"] + 1.0 and after["ay"] > before["ay"] + 0.5, (before, after)
+    m = re.search(r"gyro_scale_err\s+([-0-9.]+)", fit_mine)
+    assert m and float(m.group(1)) == pytest.approx(0.06, abs=0.01), fit_mine

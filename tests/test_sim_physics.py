@@ -106,3 +106,85 @@ def test_sensor_voltages_follow_the_datasheets():
     noise_g = np.std(volts["ay"]) / 0.33
     # 150 ug/sqrt(Hz) through a first-order 50 Hz filter: sqrt(pi/2 * 50 Hz) * 150 ug ~ 1.3 mg
     assert noise_g == pytest.approx(150e-6 * math.sqrt(math.pi / 2 * 50), rel=0.2)
+
+
+def test_steering_linkage_is_calibrated_at_small_angles_odd_and_degressive():
+    """The four-bar linkage: slope 1 at straight ahead (the pulse calibration), each wheel's
+    angle not odd on its own (inner and outer wheels differ) but the single track's mean odd
+    (left and right are mirror images), and the short horn falling behind at large angles."""
+    ratio = vehicle.linkage_ratio(CAR)
+    f = lambda d: vehicle.road_wheel_angle(d, CAR, ratio)  # noqa: E731
+    assert f(1e-4) == pytest.approx(1e-4, rel=1e-4)
+    for d in (0.05, 0.15, 0.3):
+        assert f(-d) == pytest.approx(-f(d), rel=1e-9)
+    servo = 0.2 / ratio
+    left, right = vehicle._wheel_angle(servo, 1, CAR), vehicle._wheel_angle(servo, -1, CAR)
+    assert left > 0 and right > 0 and abs(left - right) > 1e-3  # the wheels toe differently in a turn
+    assert f(0.2) < 0.2 * 0.97  # degressive by a few percent at 0.2 rad
+    # a horn as long as the arm on a symmetric layout is nearly linear: the nonlinearity is geometry
+    lin = vehicle.CarParams(steer_horn=0.02, steer_ackermann_deg=0.0)
+    assert abs(vehicle.road_wheel_angle(0.2, lin, vehicle.linkage_ratio(lin)) / 0.2 - 1) < 0.01
+
+
+def test_spool_moment_matches_the_small_slip_formula_and_opposes_yaw():
+    """Mz = -(Cx t^2 / 4) r / vx for small slips with no drive force (Cx per axle)."""
+    for vx, r in ((4.0, 0.5), (6.0, -0.8)):
+        mz = vehicle.spool_moment(vx, r, 0.0, CAR)
+        assert mz == pytest.approx(-CAR.Cx * CAR.track ** 2 / 4 * r / vx, rel=0.02)
+        assert mz * r < 0
+
+
+def test_locked_diff_damps_yaw_and_locks_the_rear_wheels():
+    open_ = drive("step_steer", duration=6, speed=3.0, steer_amp=0.05)
+    spool = drive("step_steer", ("locked_diff",), duration=6, speed=3.0, steer_amp=0.05)
+    assert np.max(spool.traj.r) < 0.95 * np.max(open_.traj.r)  # extra understeer and yaw damping
+    w = vehicle.wheel_speeds(spool.traj, CAR)
+    moving = spool.traj.vx > 1.0
+    assert np.array_equal(w[2][moving], w[3][moving])
+
+
+def test_sensor_delay_shows_the_motion_of_delay_seconds_ago():
+    run = drive("random_steer", duration=4)
+    tg = np.arange(0, 8.0, 1e-3)
+    now = sensors.body_signals(run.traj, CAR, vehicle.Effects(set()), 0.0, tg)
+    late = sensors.body_signals(run.traj, CAR, vehicle.Effects({"sensor_delay"}), 0.0, tg)
+    k = int(round(CAR.sensor_delay_s / 1e-3))
+    for a, b in zip(now, late):
+        assert np.allclose(b[k:], a[:-k], atol=1e-9 + 1e-6 * np.max(np.abs(a)))
+
+
+def test_an_effect_file_adds_its_loads_and_signals(tmp_path):
+    """A user's truth-side file: a yaw moment opposing yaw and a gyro that reads 10% high."""
+    from hil_sim.effect_file import load_effect_file
+
+    f = tmp_path / "damper.py"
+    f.write_text("NAME = 'damper'\n"
+                 "def body_loads(state, car):\n    return 0.0, -2.0 * state['r']\n"
+                 "def sensor_signals(t, s, car):\n    s['r'] = 1.1 * s['r']\n    return s\n")
+    eff = load_effect_file(f)
+    plain = drive("step_steer", duration=6, speed=3.0, steer_amp=0.05)
+    cfg = SimConfig(plan=Plan(name="step_steer", duration=6, speed=3.0, steer_amp=0.05), effect_files=(str(f),),
+                    seed=1)
+    damped = simulate_run(cfg)
+    assert np.max(damped.traj.r) < 0.97 * np.max(plain.traj.r)
+    tr = damped.traj
+    _, _, _, r = sensors.body_signals(tr, CAR, vehicle.Effects(set(), (eff,)), 0.0)
+    assert np.allclose(r, 1.1 * tr.r)
+
+
+@pytest.mark.parametrize("text, says", [
+    (None, "no such file"),
+    ("def body_loads(:\n", "failed to load (SyntaxError"),
+    ("x = 1\n", "defines none of steer_angle, body_loads, sensor_signals"),
+])
+def test_a_bad_effect_file_is_one_line_and_exit_2(tmp_path, text, says):
+    import subprocess
+    import sys
+
+    f = tmp_path / "mine.py"
+    if text is not None:
+        f.write_text(text)
+    r = subprocess.run([sys.executable, "-m", "hil_sim.cli", "--fast", "-o", str(tmp_path / "x.mcap"),
+                        "--effect-file", str(f)], capture_output=True, text=True)
+    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1

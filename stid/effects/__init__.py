@@ -4,7 +4,10 @@ from stid.effects import (  # noqa: F401
     accel_offset,
     actuator_lag,
     body_roll,
+    locked_diff,
     sensor_bias,
+    sensor_delay,
+    steering_nonlinearity,
     tyre_relaxation,
     tyre_saturation,
 )

@@ -12,6 +12,11 @@ With relaxation lengths sigma_f, sigma_r the forces lag their steady value:
 Fy' = vx/sigma (C alpha - Fy) (study 1, section 2.3). Inputs: the front
 road-wheel angle ``delta`` and additive force corrections ``dFf``, ``dFr`` used by
 nonlinear tyre effects.
+
+Body loads (``stid.models.effect.BodyLoad``, the effects' ``"body"`` stage) add a
+lateral force Fy and a yaw moment Mz, linear in vy, r and delta, to the right-hand
+sides: m (vy' + vx r) = Fyf + Fyr + Fy, Iz r' = a Fyf - b Fyr + Mz. The
+accelerometer at the CG feels Fy too (ay = (Fyf + Fyr + Fy)/m).
 """
 
 from __future__ import annotations
@@ -40,7 +45,19 @@ BASE_PARAMS = (
 )
 
 
-def bicycle(p: dict, ctx: Context, sigma_f: float | None = None, sigma_r: float | None = None) -> LinSys:
+def _load_rows(loads, n):
+    """Sum of the body loads as rows over the states (vy, r first) and the inputs (delta first)."""
+    Fy_x, Fy_u, Mz_x, Mz_u = np.zeros(n), np.zeros(3), np.zeros(n), np.zeros(3)
+    for ld in loads:
+        for coef, row_x, row_u in ((ld.Fy, Fy_x, Fy_u), (ld.Mz, Mz_x, Mz_u)):
+            row_x[0] += coef.get("vy", 0.0)
+            row_x[1] += coef.get("r", 0.0)
+            row_u[0] += coef.get("delta", 0.0)
+    return Fy_x, Fy_u, Mz_x, Mz_u
+
+
+def bicycle(p: dict, ctx: Context, sigma_f: float | None = None, sigma_r: float | None = None,
+            loads=()) -> LinSys:
     m, a, b, vx = ctx.mass, ctx.a, ctx.b, ctx.vx
     Cf, Cr, Iz = p["Cf"], p["Cr"], p["Iz"]
     # slip angles as rows over [vy, r] and [delta]
@@ -58,13 +75,16 @@ def bicycle(p: dict, ctx: Context, sigma_f: float | None = None, sigma_r: float 
         Ff_x, Ff_u = Cf * af_x, np.array([Cf * af_u, 1.0, 0.0])
         Fr_x, Fr_u = Cr * ar_x, np.array([0.0, 0.0, 1.0])
     n = len(states)
+    # extra forces on the body (the "body" stage) beside the axle forces; Fy acts at the CG
+    Fy_x, Fy_u, Mz_x, Mz_u = _load_rows(loads, n)
     A = np.zeros((n, n))
     B = np.zeros((n, 3))
-    A[0] = (Ff_x + Fr_x) / m
+    ay_x, ay_u = (Ff_x + Fr_x + Fy_x) / m, (Ff_u + Fr_u + Fy_u) / m
+    A[0] = ay_x
     A[0, 1] -= vx
-    B[0] = (Ff_u + Fr_u) / m
-    A[1] = (a * Ff_x - b * Fr_x) / Iz
-    B[1] = (a * Ff_u - b * Fr_u) / Iz
+    B[0] = ay_u
+    A[1] = (a * Ff_x - b * Fr_x + Mz_x) / Iz
+    B[1] = (a * Ff_u - b * Fr_u + Mz_u) / Iz
     if relax:
         kf, kr = vx / sigma_f, vx / sigma_r
         A[2] = kf * Cf * af_x
@@ -73,7 +93,6 @@ def bicycle(p: dict, ctx: Context, sigma_f: float | None = None, sigma_r: float 
         A[3] = kr * Cr * ar_x
         A[3, 3] -= kr
         B[3] = [0.0, 0.0, kr]
-    ay_x, ay_u = (Ff_x + Fr_x) / m, (Ff_u + Fr_u) / m
     e_r = np.zeros(n)
     e_r[1] = 1.0
     e_vy = np.zeros(n)

@@ -1,26 +1,48 @@
 """The seam for physical effects: a small base class, a registry, and entry points.
 
-An effect changes the single-track model at one of three places:
+An effect changes the single-track model at one of four places, in this order:
 
-- ``"input"``: the steering path before the tyres (e.g. servo lag). ``apply``
-  returns the system with a block in front of the ``delta`` input.
+- ``"input"``: the steering path before the tyres. ``apply`` returns the system
+  with a linear block in front of the ``delta`` input (servo lag, a Pade delay);
+  a static nonlinear map of the logged steer (linkage geometry) implements
+  ``steer_map`` instead, which the model applies to the sampled steer signal
+  before simulating (exact: no iteration, the rest of the model stays linear).
 - ``"tyre"``: how side forces build up. ``tyre_options`` returns options for the
   base model (relaxation lengths); a nonlinear tyre effect implements
   ``force_correction`` (force minus its linear part, from the slip angles).
+- ``"body"``: forces and moments on the body that are not tyre side forces (a
+  locked differential's yaw moment, aerodynamics). ``body_loads`` returns a
+  ``BodyLoad``: an extra lateral force Fy [N] and yaw moment Mz [N m], each a
+  linear combination of the base model's states ``vy`` [m/s], ``r`` [rad/s] and
+  its input ``delta`` [rad], with coefficients that may depend on the parameters
+  and the speed ``ctx.vx``. The base model adds them to its body equations
+
+      m (vy' + vx r) = Fyf + Fyr + Fy,      Iz r' = a Fyf - b Fyr + Mz,
+
+  so the accelerometer (ay = (Fyf + Fyr + Fy)/m), the yaw acceleration and every
+  later stage see them, and no effect edits ``sys.A`` by hand. The model is still
+  assembled as one linear system at each speed, so the frequency fit, the
+  Cramer-Rao planner and the measured-speed (LPV) simulator, which rebuilds the
+  matrices at several speeds and fits c0 + c1 vx + c2/vx per entry, use it
+  unchanged (a coefficient with another speed law is built at every grid speed).
 - ``"output"``: what the sensors see (offsets, tilt, mounting position).
   ``apply`` adds states or changes the ``ay`` / ``r`` output rows.
 
 A new effect is one class with ``name``, ``params``, ``stage``, ``physics`` (one
 paragraph), ``signature`` (how it shows in the residuals) and the method for its
-stage, registered with ``@register_effect`` or through the ``stid.effects`` entry
-point group. The contract tests and ``stid diagnose`` pick it up with no other
+stage, registered with ``@register_effect``, through the ``stid.effects`` entry
+point group, or from a Python file named in the ``STID_EFFECTS`` environment
+variable (paths separated by ``os.pathsep``; for trying an effect before it is
+packaged). The contract tests and ``stid diagnose`` pick it up with no other
 change. See docs/writing_an_effect.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -49,6 +71,33 @@ class Context:
         return self.mass * G * self.b / self.L, self.mass * G * self.a / self.L
 
 
+BODY_SIGNALS = ("vy", "r", "delta")  # what a body load may be a linear function of
+
+
+@dataclass(frozen=True)
+class BodyLoad:
+    """Extra lateral force and yaw moment on the body, linear in the base model's signals.
+
+    Parameters
+    ----------
+    Fy : dict
+        Coefficients of the lateral force [N] on ``vy`` [N s/m], ``r`` [N s/rad] and
+        ``delta`` [N/rad] (missing keys are 0).
+    Mz : dict
+        Coefficients of the yaw moment [N m] on the same signals [N m s/m, N m s/rad, N m/rad].
+    """
+
+    Fy: dict = field(default_factory=dict)
+    Mz: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        for what, coef in (("Fy", self.Fy), ("Mz", self.Mz)):
+            bad = set(coef) - set(BODY_SIGNALS)
+            if bad:
+                raise ValueError(f"a body load's {what} can depend on {', '.join(BODY_SIGNALS)} only, "
+                                 f"not {', '.join(sorted(bad))}")
+
+
 class Effect:
     name: ClassVar[str] = ""
     params: ClassVar[tuple[Param, ...]] = ()
@@ -68,11 +117,28 @@ class Effect:
         """Nonlinear part of the axle side forces [N], or None for a linear effect."""
         return None
 
+    def body_loads(self, p: dict, ctx: Context) -> BodyLoad:
+        """Stage ``"body"``: the extra lateral force and yaw moment (see ``BodyLoad``)."""
+        return BodyLoad()
+
+    def steer_map(self, delta_cmd: np.ndarray, p: dict, ctx: Context) -> np.ndarray:
+        """Stage ``"input"``, nonlinear: the road-wheel angle [rad] for the logged steer [rad],
+        a static map applied to every sample (its slope at 0 should be 1: the steering
+        calibration fixes the small-angle gain, which Cf cannot tell from a gain error)."""
+        return delta_cmd
+
     @property
     def nonlinear(self) -> bool:
+        """Needs the iterated simulation (a force that depends on the slip angles)."""
         return type(self).force_correction is not Effect.force_correction
 
+    @property
+    def maps_steer(self) -> bool:
+        """Changes the steer signal by a static nonlinear map (exact, not iterated)."""
+        return type(self).steer_map is not Effect.steer_map
 
+
+STAGES = ("input", "tyre", "body", "output")  # the order in which a model applies them
 _REGISTRY: dict[str, type[Effect]] = {}
 _ENTRY_POINTS_LOADED = False
 
@@ -81,8 +147,8 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
     """Class decorator: make an effect available by its name (``bicycle+NAME``)."""
     if not cls.name or not cls.name.isidentifier():
         raise ValueError(f"effect {cls.__name__} needs a name that is a Python identifier")
-    if cls.stage not in ("input", "tyre", "output"):
-        raise ValueError(f"effect {cls.name}: stage must be 'input', 'tyre' or 'output'")
+    if cls.stage not in STAGES:
+        raise ValueError(f"effect {cls.name}: stage must be one of {', '.join(map(repr, STAGES))}")
     _REGISTRY[cls.name] = cls
     return cls
 
@@ -102,6 +168,24 @@ def _load_entry_points() -> None:
         cls = ep.load()
         if isinstance(cls, type) and issubclass(cls, Effect) and cls.name not in _REGISTRY:
             register_effect(cls)
+    for path in filter(None, os.environ.get("STID_EFFECTS", "").split(os.pathsep)):
+        _load_effect_file(Path(path))
+
+
+def _load_effect_file(path: Path) -> None:
+    """Run a user's effect module (its ``@register_effect`` classes register themselves)."""
+    import importlib.util
+
+    if not path.is_file():
+        raise InputError(f"STID_EFFECTS names {path}, which is not a file: give the path of the Python "
+                         "file that defines your effect")
+    spec = importlib.util.spec_from_file_location(f"stid_user_effect_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:  # the user's code: say where, in one line
+        raise InputError(f"STID_EFFECTS: {path} failed to load ({type(e).__name__}: {e}); fix the file "
+                         "or remove it from STID_EFFECTS") from None
 
 
 def available_effects() -> dict[str, type[Effect]]:

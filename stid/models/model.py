@@ -13,7 +13,7 @@ from stid.models.params import Param
 
 BASES = ("bicycle",)  # "greybox" (study 2) is fitted by stid.fit.greybox_fit
 MEASURED = ("ay", "r")
-_STAGE_ORDER = {"input": 0, "tyre": 1, "output": 2}
+_STAGE_ORDER = {"input": 0, "tyre": 1, "body": 2, "output": 3}
 
 
 def parse_model_name(name: str) -> tuple[str, list[str]]:
@@ -107,7 +107,8 @@ class Model:
         for e in self._ordered:
             if e.stage == "tyre":
                 opts.update(e.tyre_options(p, ctx))
-        sys = bicycle(p, ctx, **opts)
+        loads = [e.body_loads(p, ctx) for e in self._ordered if e.stage == "body"]
+        sys = bicycle(p, ctx, loads=loads, **opts)
         for e in self._ordered:
             if e.stage in ("input", "output"):
                 sys = e.apply(sys, p, ctx)
@@ -151,10 +152,13 @@ class Model:
         the last iterate is returned and ``self.converged`` is False: its poor fit
         steers the optimiser away.
         """
-        if not self.nonlinear:
-            return self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)(steer)
         v = np.asarray(vx, float)
         ctx = self.context(float(np.median(v)) if v.ndim else float(v))
+        for e in self._ordered:  # static steer maps (linkage geometry): exact, on the sampled signal
+            if e.maps_steer:
+                steer = e.steer_map(np.asarray(steer, float), p, ctx)
+        if not self.nonlinear:
+            return self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)(steer)
         outs = list(outputs)
         n = len(steer)
         # the steer's part is fixed; each pass only needs the slip angles' response

@@ -1,0 +1,75 @@
+"""A user's own truth-side effect, loaded from a Python file (``stid-sim --effect-file FILE``).
+
+The file is the car's physics, written apart from the identifier's effect class (it
+must not import ``stid``): a hidden effect is only a test if the two were written
+separately. It defines any of three functions, each called by the simulator with
+SI values and ISO 8855 signs (x forward, y left, left turns positive):
+
+``steer_angle(delta, car) -> delta``
+    The front road-wheel angle [rad] from the angle the steering would give without
+    the effect, at every integration step (linkage, compliance, a steering gyro).
+``body_loads(state, car) -> (Fy, Mz)``
+    An extra lateral force [N] and yaw moment [N m] on the body at the centre of
+    gravity, from ``state`` (a dict of ``vx``, ``vy`` [m/s], ``r`` [rad/s], ``delta``
+    [rad]) at every integration step (a locked differential, aerodynamics).
+``sensor_signals(t, signals, car) -> signals``
+    What the sensors feel, before their noise, filters and ADC: ``signals`` holds
+    arrays ``ax``, ``ay``, ``az`` [m/s^2] and ``r`` [rad/s] on the time grid ``t`` [s];
+    return the dict with the changed arrays (a scale error, a misaligned sensor).
+
+``car`` is the simulated car's ``hil_sim.vehicle.CarParams`` (mass, a, b, Iz, Cf, Cr,
+track, ...). An optional ``NAME`` string names the effect in the truth file.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+HOOKS = ("steer_angle", "body_loads", "sensor_signals")
+
+
+@dataclass(frozen=True)
+class TruthEffect:
+    name: str
+    path: str
+    steer_angle: Callable | None = None
+    body_loads: Callable | None = None
+    sensor_signals: Callable | None = None
+
+
+def load_effect_file(path) -> TruthEffect:
+    """Load ``path``; a missing file, a file that fails to run or one without any of the
+    hooks is a ValueError whose message says what to fix (stid-sim prints it in one line)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"--effect-file {path}: no such file; give the path of a Python file that defines "
+                         f"{', '.join(HOOKS[:-1])} or {HOOKS[-1]}")
+    spec = importlib.util.spec_from_file_location(f"hil_sim_truth_effect_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:  # the user's code: say which file and what, in one line
+        raise ValueError(f"--effect-file {path} failed to load ({type(e).__name__}: {e})") from None
+    hooks = {h: getattr(module, h, None) for h in HOOKS}
+    bad = [h for h, f in hooks.items() if f is not None and not callable(f)]
+    if bad:
+        raise ValueError(f"--effect-file {path}: {', '.join(bad)} must be a function")
+    if not any(hooks.values()):
+        raise ValueError(f"--effect-file {path} defines none of {', '.join(HOOKS)}: define at least one "
+                         "(see hil_sim/effect_file.py)")
+    wrapped = {h: _reported(f, h, path) for h, f in hooks.items() if f is not None}
+    return TruthEffect(name=str(getattr(module, "NAME", path.stem)), path=str(path), **wrapped)
+
+
+def _reported(fn, hook, path):
+    """``fn``, with an error inside the user's code turned into one line naming the file and hook."""
+    def call(*args):
+        try:
+            return fn(*args)
+        except Exception as e:
+            raise ValueError(f"--effect-file {path}: {hook} raised {type(e).__name__}: {e}") from None
+
+    return call
