@@ -17,12 +17,19 @@ def _rows(quick: bool, data_dir):
     from benchmarks import accuracy_bench, firmware_bench, ident_bench, logger_bench
 
     t = logger_bench.throughput(quick)
-    yield ("logger", "decode + MCAP write, 1 sample/frame", f"{t['frames_per_s']:,.0f} frames/s",
-           "≥ 40,000 frames/s (USB FS line rate), 0 lost",
-           t["frames_per_s"] >= 40_000 and t["lost"] == 0)
+    yield ("logger", f"decode + MCAP write, 1 sample/frame ({t['bytes_per_frame']:.0f} bytes/frame on the wire)",
+           f"{t['frames_per_s']:,.0f} frames/s ({t['ratio_to_usb_fs']:.2f}x the USB FS ceiling)",
+           f"≥ {t['usb_fs_frames_per_s']:,.0f} frames/s (USB full-speed bulk ceiling for this frame size), 0 lost",
+           t["ratio_to_usb_fs"] >= 1.0 and t["lost"] == 0)
     ld = logger_bench.load_rate(quick)
-    yield ("logger", f"MCAP → arrays ({ld['samples']:,} samples, {ld['file_mb']:.1f} MB)",
-           f"{ld['samples_per_s']:,.0f} samples/s", "≥ 1,000,000 samples/s", ld["samples_per_s"] >= 1e6)
+    yield ("logger", f"MCAP → arrays, real-time-shaped log ({ld['samples']:,} samples, {ld['file_mb']:.1f} MB; "
+                     f"reads of {ld['read_bytes']:.0f} bytes as stid-log made them through a pty)",
+           f"{ld['samples_per_s']:,.0f} samples/s ({ld['samples_per_cpu_s']:,.0f} per CPU second)",
+           "≥ 1,000,000 samples/s", ld["samples_per_s"] >= 1e6)
+    fs = logger_bench.fast_sim(quick)
+    yield ("logger", f"stid-sim --fast, {fs['seconds']:.0f} s run", f"{fs['x_real_time']:.1f}x real time, "
+           f"{fs['peak_mb']:.0f} MB peak", "≥ 10x real time, ≤ 150 MB for 10 min",
+           fs["ok"] and fs["x_real_time"] >= 10 and fs["peak_mb"] <= 150)
     c = logger_bench.cpu_at_1khz(quick)
     yield ("logger", f"CPU share recording 1 kHz in real time ({c['samples']} samples)",
            f"{100 * c['cpu_share']:.1f} % of one core", "small (< 10 %)", c["cpu_share"] < 0.10)
@@ -34,7 +41,7 @@ def _rows(quick: bool, data_dir):
            "≥ 500 Hz with ≥ 50 % idle", f["rp2040_max_rate_50pct_idle_est"] >= 500)
 
     t = ident_bench.fit_times(data_dir, quick)
-    yield ("fit", f"stid fit bicycle, 2 x 40 s at 500 Hz ({t['samples']:,} samples, fitted at ~170 Hz)",
+    yield ("fit", f"stid fit bicycle, 2 x 40 s at 500 Hz ({t['samples']:,} samples, fitted at 100 Hz)",
            f"{t['fit_time_s']:.3f} s compute", "≤ 0.2 s", t["fit_time_s"] <= 0.2)
     yield ("fit", "stid fit bicycle, 2 x 40 s track runs (speed +-25%: simulated at the measured speed)",
            f"{t['fit_track_s']:.3f} s compute", "≤ 0.5 s", t["fit_track_s"] <= 0.5)
@@ -44,10 +51,12 @@ def _rows(quick: bool, data_dir):
     yield ("fit", "whole process: `stid fit` vs the study's method, same files",
            f"{t['cli_fit_s']:.2f} s vs {t['cli_study_s']:.2f} s", "stid not slower", t["cli_fit_s"] <= t["cli_study_s"])
     dg = ident_bench.diagnose_time(data_dir, quick)
-    yield ("diagnose", "6 candidates, 2 x 40 s (in-process, after imports)", f"{dg['diagnose_s']:.2f} s, found "
+    yield ("diagnose", f"{dg['candidates']} candidates, 2 x 40 s (in-process, after imports)",
+           f"{dg['diagnose_s']:.2f} s, found "
            f"{dg['found']}", "≤ 2 s", dg["diagnose_s"] <= 2.0)
     yield ("diagnose", "whole `stid diagnose` process (Python start-up and imports included)",
-           f"{dg['cli_diagnose_s']:.2f} s", "≤ 2 s", dg["cli_diagnose_s"] <= 2.0)
+           f"{dg['cli_diagnose_s']:.2f} s wall, {dg['cli_diagnose_cpu_s']:.2f} s CPU", "≤ 2 s",
+           dg["cli_diagnose_s"] <= 2.0)
 
     yield from _accuracy_rows(quick, data_dir)
     sc = ident_bench.scaling(data_dir, quick)

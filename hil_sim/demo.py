@@ -15,6 +15,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -38,8 +39,38 @@ def say(text: str = "") -> None:
     print(text, flush=True)
 
 
+class Ticker:
+    """While a step works silently: the seconds it has taken, on one line that is
+    rewritten (a terminal), or a line every 15 s (a log)."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self.tty = sys.stdout.isatty()
+        self._stop = threading.Event()
+
+    def __enter__(self):
+        self.t0 = time.monotonic()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self):
+        every = 1.0 if self.tty else 15.0
+        while not self._stop.wait(every):
+            line = f"    ... {self.what}: {time.monotonic() - self.t0:.0f} s"
+            print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", flush=True)
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join()
+        if self.tty and time.monotonic() - self.t0 >= 1.0:
+            print("\r" + " " * 60 + "\r", end="", flush=True)
+        return False
+
+
 def run(cmd, show=True) -> str:
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    with Ticker(Path(cmd[0]).name + (" " + cmd[1] if len(cmd) > 1 else "")):
+        proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         say(proc.stdout)
         raise SystemExit(f"demo: '{' '.join(Path(c).name if i == 0 else c for i, c in enumerate(cmd))}' "
@@ -62,8 +93,12 @@ def drive_and_log() -> dict:
         loggers.append(subprocess.Popen([tool("stid-log"), port, "-o", str(path), "--duration", "60",
                                          "--reconnect-timeout", "0.5"], stderr=subprocess.PIPE, text=True))
         sims.append(sim)
-    for sim in sims:
-        sim.wait()
+    with Ticker(f"driving ({max(float(a[a.index('--duration') + 1]) for _, a in DRIVES):.0f} s of real time)"):
+        for sim in sims:
+            sim.wait()
+    for sim in sims:  # (their pipes: the port line was read, the rest is not needed)
+        sim.stdout.close()
+        sim.stderr.close()
     for (name, _), lg in zip(DRIVES, loggers):
         _, err = lg.communicate()
         if lg.returncode != 0:
@@ -87,8 +122,9 @@ def main() -> int:
     runs = [str(files["track_4ms"]), str(files["track_6ms"])]
 
     say("\n2. Calibrate the sensors from the stand-still run")
-    proc = subprocess.run([tool("stid"), "calibrate", str(files["standstill"]), "--vehicle", str(vehicle)],
-                          capture_output=True, text=True)
+    with Ticker("stid calibrate"):
+        proc = subprocess.run([tool("stid"), "calibrate", str(files["standstill"]), "--vehicle", str(vehicle)],
+                              capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"demo: stid calibrate failed: {proc.stderr.strip()}")
     say("\n".join("    " + line for line in proc.stderr.strip().splitlines()))
@@ -98,9 +134,10 @@ def main() -> int:
 
     say("\n4. Where does it fail, and what is missing?  (stid diagnose --peel)")
     out = run([tool("stid"), "diagnose", *runs, "--vehicle", str(vehicle), "--peel"])
-    found = [line.split("=> ")[1].split(":")[0] for line in out.splitlines() if "=> " in line and ":" in line
-             and not line.strip().startswith("=> nothing") and not line.strip().startswith("=> no ")]
-    model = "+".join(["bicycle"] + found)
+    # diagnose ends with the next command; its --model is the model with what was found
+    nxt = [line for line in out.splitlines() if line.startswith("next:") and "--model" in line]
+    model = nxt[-1].split("--model")[-1].split()[0] if nxt else "bicycle"
+    found = model.split("+")[1:]
 
     say(f"\n5. Add what it found: stid fit --model {model}")
     run([tool("stid"), "fit", *runs, "--vehicle", str(vehicle), "--model", model, "--method", "time"])

@@ -31,13 +31,72 @@ def _cmd_fit(args) -> int:
     from stid.progress import Progress
 
     vehicle, runs = _vehicle_and_runs(args)
-    with Progress(f"fitting {args.model} ({args.method})"):
+    held = _validation_runs(args, vehicle)
+    with Progress(f"fitting {args.model} ({args.method})") as prog:
         res = fit(runs, vehicle, args.model, args.method)
+        prog.step("the noise floor")
+        judged, floor, floor_se = _judge(res, args.model, vehicle, runs, held)
     if args.json:
-        print(json.dumps(res.to_json(), indent=1))
+        doc = res.to_json()
+        if held:
+            doc["validation"] = {"runs": [r.name for r in held], "fit": {k: round(v, 2) for k, v in judged.fit.items()}}
+        doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
+        print(json.dumps(doc, indent=1))
     else:
         print(res.table())
+        if held:
+            print(f"  judged on {', '.join(r.name for r in held)} (not fitted to): "
+                  + "   ".join(f"{k} {v:.1f}%" for k, v in judged.fit.items()))
+        print(_floor_line(judged, floor, floor_se, args))
     return 0
+
+
+def _validation_runs(args, vehicle):
+    if not getattr(args, "validate", None):
+        return None
+    from stid.load import load_runs
+
+    held = load_runs(args.validate, vehicle)
+    _print_load_warnings(held)
+    return held
+
+
+def _judge(res, model_name, vehicle, runs, held):
+    """The fit judged on the held-out runs (or its own), and the noise floor of those runs."""
+    from stid.analysis.noise_floor import noise_floor_uncertainty
+    from stid.errors import InputError
+    from stid.fit import dataset
+
+    try:
+        st = dataset.dynamic_stretches(held if held else runs)
+    except InputError:
+        if held:
+            raise
+        return res, {"ay": float("nan"), "r": float("nan")}, {"ay": float("nan"), "r": float("nan")}
+    floor, se = noise_floor_uncertainty(st)
+    if not held or not res.predictions:
+        return res, floor, se
+    from stid.fit.validate import judge_on
+    from stid.models.model import Model
+
+    return judge_on(res, Model(model_name, vehicle), st), floor, se
+
+
+def _floor_line(res, floor, se, args) -> str:
+    if not res.fit or not all(k in floor for k in res.fit):
+        return ""
+    short = {o: floor[o] - res.fit[o] for o in res.fit
+             if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
+    text = ("  noise floor (what a correct model reaches on this data): "
+            + "   ".join(f"{o} {floor[o]:.1f}%" for o in floor))
+    if short:
+        import shlex
+
+        cmd = " ".join(shlex.quote(a) for a in ["stid", "diagnose", *args.runs, "--vehicle", args.vehicle,
+                                                  "--model", args.model])
+        text += ("\n  this model is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
+                 + "): something is missing. See what: " + cmd)
+    return text
 
 
 def _vehicle_and_runs(args):
@@ -73,9 +132,10 @@ def _cmd_diagnose(args) -> int:
         doc = rounds[0].to_json()
         if args.peel:
             doc["steps"] = [d.to_json() for d in rounds]
+        doc["unexplained"] = rounds[-1].unexplained.to_json()
         print(json.dumps(doc, indent=1))
     else:
-        print(diagnosis_text(rounds))
+        print(diagnosis_text(rounds, args.runs, args.vehicle, peel=args.peel))
     return 0
 
 
@@ -87,8 +147,10 @@ def _cmd_compare(args) -> int:
     from stid.progress import Progress
 
     vehicle, runs = _vehicle_and_runs(args)
+    held = _validation_runs(args, vehicle)
     with Progress("comparing") as prog:
-        entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog)
+        entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog,
+                          validate=held)
     if args.json:
         print(json.dumps({"models": [{k: v for k, v in e.items() if not k.startswith("_")} for e in entries]},
                          indent=1))
@@ -174,12 +236,49 @@ def _cmd_calibrate(args) -> int:
 def _cmd_repair(args) -> int:
     from host.repair import repair_cli
 
-    return repair_cli(args.file, args.output)
+    return repair_cli(args.file, args.output, args.hello_from)
+
+
+USAGE = """\
+stid turns runs logged from an RC car (stid-log's MCAP, or CSV) into a measured
+vehicle: cornering stiffness per axle [N/rad], yaw inertia [kg m^2], and the
+physical effects the plain single-track model misses.
+
+A first session:
+  stid fit RUN.mcap --vehicle car.toml             fit the single-track model
+  stid diagnose RUN.mcap --vehicle car.toml --peel  what is missing, and where
+  stid fit RUN.mcap --vehicle car.toml --model bicycle+actuator_lag
+  stid report RUN.mcap --vehicle car.toml -o out/   the whole story as one HTML page
+No car yet? `make demo` runs all of it on the simulated car."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Help that ends with the catalogue of effects (looked up only when help is shown,
+    so a command does not pay for importing every effect)."""
+
+    def format_help(self) -> str:
+        text = super().format_help()
+        if self.prog != "stid":
+            return text
+        import textwrap
+
+        from stid.models.effect import available_effects
+
+        lines = ["", "effects a model can add (--model bicycle+EFFECT+...), with their parameters:"]
+        for name, cls in sorted(available_effects().items()):
+            doc = (getattr(cls, "physics", "") or "").split(". ")[0].strip().rstrip(".") + "."
+            params = ", ".join(f"{q.name} [{q.unit}]" for q in cls.params)
+            lines.append(f"  {name}: {params}")
+            lines.extend(textwrap.wrap(doc, 78, initial_indent="      ", subsequent_indent="      "))
+        return text + "\n".join(lines) + "\n"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="stid", description=__doc__.split("\n\n")[0].replace("\n", " "))
-    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    from stid import __version__
+
+    ap = _Parser(prog="stid", description=USAGE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--version", action="version", version=f"stid {__version__}")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=argparse.ArgumentParser)
     sub.required = True
 
     p = sub.add_parser("flash", help="precompile the firmware and copy it to a board")
@@ -202,6 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", default="bicycle", help="bicycle or bicycle+effect+... (default bicycle)")
     p.add_argument("--method", default="auto", choices=["auto", "steady", "freq", "freq-study", "time", "two-step"],
                    help="auto: two-step when there are steady circles and a constant-speed stretch")
+    p.add_argument("--validate", nargs="+", metavar="RUN", help="judge the fit on these runs (not fitted to)")
     p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
     p.set_defaults(func=_cmd_fit)
 
@@ -218,6 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("--model", action="append", help="a model to compare (repeat the option)")
     p.add_argument("--method", default="time", choices=["time", "freq"], help="how each model is fitted")
+    p.add_argument("--validate", nargs="+", metavar="RUN", help="judge every model on these runs (not fitted to)")
     p.add_argument("--json", action="store_true", help="machine-readable result on stdout (nothing else)")
     p.set_defaults(func=_cmd_compare)
 
@@ -259,21 +360,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write here instead of updating the vehicle file")
     p.set_defaults(func=_cmd_calibrate)
 
-    p = sub.add_parser("repair", help="rewrite a truncated MCAP file (logger killed) into a complete one")
+    p = sub.add_parser("repair", help="rewrite a cut-short or damaged log into a complete one (what fails its "
+                                      "checks is left out and named)")
     p.add_argument("file")
     p.add_argument("-o", "--output", help="output path (default: FILE with .repaired.mcap)")
+    p.add_argument("--hello-from", metavar="EARLIER.mcap",
+                   help="a log with no HELLO: take the configuration from an earlier log of the same board")
     p.set_defaults(func=_cmd_repair)
 
+    for p in sub.choices.values():
+        p.add_argument("--version", action="version", version=f"stid {__version__}")
     return ap
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        rc = args.func(args)
+        sys.stdout.flush()  # inside the try: a closed pipe shows here, not at interpreter exit
+        return rc
     except (StidError, HostError) as e:
         print(f"stid {args.command}: error: {e}", file=sys.stderr)
         return e.exit_code
+    except BrokenPipeError:
+        # the reader went away (`stid ... | head -1`): nothing more to say, and nothing to flush
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as e:  # the environment refused something (permissions, full disk)
         where = f": {e.filename}" if e.filename else ""
         print(f"stid {args.command}: error: {e.strerror or e}{where}", file=sys.stderr)

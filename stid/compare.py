@@ -1,34 +1,102 @@
-"""``stid compare``: fit several models to the same runs and show where each fails."""
+"""``stid compare``: fit several models to the same runs and show where each fails:
+fit percent per frequency band, per |ay| bin (linear range vs the friction limit) and
+per run, residual whiteness, and a verdict. Every model is fitted by the one path
+``stid fit`` uses (stid.fit.fitting.fit), so the numbers are the ones ``fit`` prints."""
 
 from __future__ import annotations
 
-from stid.analysis.compare import breakdown
-from stid.analysis.noise_floor import noise_floor
-from stid.analysis.residuals import analyse
-from stid.fit import dataset
-from stid.fit.freq_fit import fit_freq
-from stid.fit.time_fit import fit_time
-from stid.models.model import Model
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stid.fit.result import fit_percent
+
+BANDS_HZ = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 8.0))
+OUTS = ("ay", "r")
 
 
-def compare(runs, vehicle, models: list[str], method: str = "time", progress=None) -> list[dict]:
-    models = [Model(name, vehicle) for name in models]  # names checked before any data work
-    stretches = dataset.dynamic_stretches(runs)
-    floor = noise_floor(stretches)
+@dataclass
+class Breakdown:
+    by_band: dict = field(default_factory=dict)  # "1-2 Hz" -> {"ay": %, "r": %}
+    by_ay: dict = field(default_factory=dict)  # "|ay| 2-4 m/s^2" -> {...}
+    by_run: dict = field(default_factory=dict)  # "run (4.0 m/s)" -> {...}
+
+
+def band_fit(y: np.ndarray, yhat: np.ndarray, fs: float, lo: float, hi: float) -> float:
+    """Fit percent of the part of y between lo and hi Hz: the residual's energy there
+    against the signal's (Parseval on one Hann-windowed periodogram; the ratio of two
+    energies in the same band needs no averaging of spectra)."""
+    w = np.hanning(len(y))
+    f = np.fft.rfftfreq(len(y), 1.0 / fs)
+    Pe = np.abs(np.fft.rfft((y - yhat - np.mean(y - yhat)) * w)) ** 2
+    Py = np.abs(np.fft.rfft((y - y.mean()) * w)) ** 2
+    m = (f >= lo) & (f < hi) & (f > 0)
+    if not m.any() or Py[m].sum() <= 0:
+        return float("nan")
+    return float(100 * (1 - np.sqrt(Pe[m].sum() / Py[m].sum())))
+
+
+def breakdown(predictions, ay_edges=(0.0, 2.0, 4.0, 6.0, np.inf)) -> Breakdown:
+    out = Breakdown()
+    y = np.vstack([p.y[p.keep] for p in predictions])
+    yh = np.vstack([p.yhat[p.keep] for p in predictions])
+    fs = 1.0 / float(predictions[0].t[1] - predictions[0].t[0])
+    for lo, hi in BANDS_HZ:
+        vals = {}
+        for i, o in enumerate(OUTS):
+            parts = [band_fit(p.y[p.keep, i], p.yhat[p.keep, i], fs, lo, hi) for p in predictions]
+            w = [int(p.keep.sum()) for p in predictions]
+            ok = [(v, n) for v, n in zip(parts, w) if np.isfinite(v)]
+            vals[o] = float(np.average([v for v, _ in ok], weights=[n for _, n in ok])) if ok else float("nan")
+        out.by_band[f"{lo:g}-{hi:g} Hz"] = vals
+    a = np.abs(y[:, 0])
+    for lo, hi in zip(ay_edges[:-1], ay_edges[1:]):
+        m = (a >= lo) & (a < hi)
+        if m.sum() < 50:
+            continue
+        # fit of the samples in the bin, against the variation of the whole output
+        out.by_ay[f"|ay| {lo:g}-{hi:g} m/s^2" if np.isfinite(hi) else f"|ay| > {lo:g} m/s^2"] = {
+            o: float(100 * (1 - np.sqrt(np.mean((y[m, i] - yh[m, i]) ** 2) / np.var(y[:, i]))))
+            for i, o in enumerate(OUTS)}
+    for p in predictions:
+        out.by_run[f"{p.name} ({p.vx:.1f} m/s)"] = {o: fit_percent(p.y[p.keep, i], p.yhat[p.keep, i])
+                                                    for i, o in enumerate(OUTS)}
+    return out
+
+
+def compare(runs, vehicle, models: list[str], method: str = "time", progress=None, validate=None) -> list[dict]:
+    """Fit each model to ``runs``; with ``validate`` (other runs) judge every number on those,
+    the parameters held at the fit's."""
+    from stid.analysis.noise_floor import noise_floor_uncertainty
+    from stid.analysis.residuals import analyse
+    from stid.fit import dataset
+    from stid.fit.fitting import fit
+    from stid.models.model import Model
+    from stid.fit.validate import judge_on
+
+    for name in models:
+        Model(name, vehicle)  # names checked before any data work
+    stretches = dataset.dynamic_stretches(runs) if method == "time" else None
+    held = dataset.dynamic_stretches(validate) if validate else None
+    floor, floor_se = noise_floor_uncertainty(held if held is not None else
+                                              (stretches if stretches is not None else dataset.dynamic_stretches(runs)))
     entries = []
-    for model in models:
+    for name in models:
         if progress:
-            progress.step(model.name)
-        res = fit_time(model, stretches) if method == "time" else fit_freq(model, stretches)
-        ra = analyse(res.predictions)
-        bd = breakdown(res.predictions)
+            progress.step(name)
+        res = fit(runs, vehicle, name, method, stretches=stretches)
+        judged = judge_on(res, Model(name, vehicle), held) if held is not None else res
+        ra = analyse(judged.predictions)
+        bd = breakdown(judged.predictions)
         entries.append({
-            "model": res.model, "method": res.method, "fit": res.fit, "aic": res.aic, "bic": res.bic,
-            "params": {n: {"value": float(v), "stderr": float(se), "unit": res.units[n]}
-                       for n, v, se in zip(res.names, res.values, res.stderr)},
-            "noise_floor": floor, "white": {o: ra.white(o) for o in ("ay", "r")},
-            "independent": {o: ra.independent(o) for o in ("ay", "r")},
+            "model": res.model, "method": res.method, "fit": judged.fit, "aic": res.aic, "bic": res.bic,
+            "validated_on": [r.name for r in validate] if validate else None,
+            "params": {n: {"value": float(v), "stderr": float(se), "ci95": [float(lo), float(hi)], "unit": res.units[n]}
+                       for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95)},
+            "noise_floor": floor, "noise_floor_stderr": floor_se,
+            "white": {o: ra.white(o) for o in OUTS},
+            "independent": {o: ra.independent(o) for o in OUTS},
             "by_band": bd.by_band, "by_ay": bd.by_ay, "by_run": bd.by_run, "warnings": res.warnings,
-            "_result": res, "_resid": ra,
+            "_result": res, "_judged": judged, "_resid": ra,
         })
     return entries

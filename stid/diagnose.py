@@ -1,7 +1,8 @@
 """Name the physical effect the model is missing.
 
-For the current model M and each effect E of the catalogue not in it, fit M+E
-and ask three questions:
+For the current model M and each effect E of the catalogue not in it, fit M+E (by
+the one fitting path every command uses, stid.fit.fitting.fit, so its numbers are
+the ones ``stid fit --model M+E`` prints) and ask four questions:
 
 1. Is the improvement more than chance? A likelihood-ratio test. Output-error
    residuals are coloured (the missing physics is filtered by the car), so the
@@ -9,15 +10,21 @@ and ask three questions:
    autocorrelation time of M's residuals; the level is 1% with a Bonferroni
    correction over the candidates.
 2. Does it matter? The effect must close at least a quarter of the gap between
-   M's fit and the noise floor (the best any linear model can do on this data) and
+   M's fit and the noise floor (what a correct model reaches on this data) and
    gain at least 0.5 fit points. A model already at the noise floor is missing
    nothing this data can show.
-3. Is it this effect and not a look-alike? Candidates whose gains are within 20%
-   of each other and whose residual signatures are known to coincide are
-   reported as not separable, with the run that would separate them.
+3. Is it one effect or the same symptom? Several effects can each close part of
+   one residual. Only the best is a candidate to name; the others that pass 1-2 on
+   their own are reported as the same symptom (``--peel`` tests them again once the
+   best is added), or as not separable when their gains are within 20% and their
+   signatures are known to coincide, with the run that would separate them.
+4. Does the evidence hold (stid.analysis.evidence)? The best candidate is refitted
+   at each speed (and amplitude) the runs hold; its parameter must be plausible
+   (not at a bound) and one value within the intervals. If not, it is not named and
+   the gap goes to ``unexplained`` with the reason.
 
 Candidates are ranked by the likelihood-ratio statistic. ``peel`` repeats the
-round with the winner added until nothing significant remains.
+round with the winner added until nothing is named.
 """
 
 from __future__ import annotations
@@ -29,23 +36,31 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc  # chi-square survival function (scipy.stats costs 0.4 s to import)
 
-from stid.analysis.noise_floor import noise_floor
+from stid.analysis.evidence import check_evidence
+from stid.analysis.noise_floor import noise_floor_uncertainty
 from stid.analysis.residuals import analyse
+from stid.analysis.unexplained import describe_unexplained
 from stid.fit import dataset
-from stid.fit.time_fit import _keep, fit_time, simulate
+from stid.fit.fitting import fit
 from stid.models.effect import available_effects
 from stid.models.model import Model, parse_model_name
 
 ALPHA = 0.01
-DIAGNOSIS_FS = 50.0  # Hz: the data are prefiltered at 20 Hz; 50 Hz keeps it all at a quarter of the cost
 MIN_GAIN = 0.5  # fit points
 GAP_FRACTION = 0.25
 OUTS = ("ay", "r")
 WORKERS = min(2, os.cpu_count() or 1)
-# effects defined in the user's own modules (a test file, a notebook) may not be importable in a
-# worker process: those rounds run in this process
-_BUILTIN_MODULES = {f"stid.effects.{m}" for m in ("accel_offset", "actuator_lag", "body_roll", "sensor_bias",
-                                                   "tyre_relaxation", "tyre_saturation")}
+
+
+def p_in_words(p: float, level: float) -> str:
+    """A p-value as a person reads it (the number stays in the JSON)."""
+    if p < level * 1e-6:
+        return "far beyond chance"
+    if p < level:
+        return f"beyond chance (odds of chance 1 in {1 / max(p, 1e-300):,.0f})"
+    if p < 0.5:
+        return "chance could give this"
+    return "no better than chance"
 
 
 @dataclass
@@ -54,13 +69,24 @@ class Candidate:
     result: object = None
     lr: float = 0.0
     p_value: float = 1.0
+    level: float = ALPHA
     gain: dict = field(default_factory=dict)
     delta_bic: float = 0.0
     significant: bool = False
+    passes: bool = False  # passes the chance and size tests on its own
     why_not: str = ""
     explanation: str = ""
     separable_from: dict = field(default_factory=dict)  # other effect -> advice
+    same_symptom_as: str = ""
+    evidence: object = None
     skipped: str = ""
+
+    def p_words(self) -> str:
+        return p_in_words(self.p_value, self.level)
+
+    def own_params(self) -> dict:
+        res = self.result
+        return {n: float(v) for n, v in res.params().items() if res.owners.get(n) == self.effect}
 
     def to_json(self) -> dict:
         out = {"effect": self.effect, "significant": self.significant}
@@ -68,12 +94,19 @@ class Candidate:
             out["skipped"] = self.skipped
             return out
         res = self.result
+        ci = dict(zip(res.names, res.ci95))
         out.update({"fit": {k: round(v, 2) for k, v in res.fit.items()}, "delta_bic": round(self.delta_bic, 1),
                     "lr": round(self.lr, 1), "p_value": float(f"{self.p_value:.3g}"),
-                    "params": {n: float(v) for n, v in res.params().items() if res.owners.get(n) == self.effect},
+                    "chance": p_in_words(self.p_value, self.level),
+                    "params": self.own_params(),
+                    "intervals": {n: [float(ci[n][0]), float(ci[n][1])] for n in self.own_params()},
                     "explanation": self.explanation})
+        if self.evidence is not None:
+            out["evidence"] = self.evidence.to_json()
         if not self.significant:
             out["why_not"] = self.why_not
+        if self.same_symptom_as:
+            out["same_symptom_as"] = self.same_symptom_as
         if self.separable_from:
             out["not_separable_from"] = self.separable_from
         return out
@@ -87,18 +120,30 @@ class Diagnosis:
     tau: dict
     n_eff: float
     candidates: list
-    breakdown: object = None
+    floor_se: dict = field(default_factory=dict)
+    unexplained: object = None  # stid.analysis.unexplained.Unexplained, on the last round
+    stretches: list = None  # the data every fit of the diagnosis used (built once)
 
     @property
     def best(self):
         sig = [c for c in self.candidates if c.significant]
         return sig[0] if sig else None
 
+    @property
+    def same_symptom(self) -> list:
+        """Candidates that pass on their own but explain the best one's residual."""
+        return [c for c in self.candidates if c.same_symptom_as]
+
     def to_json(self) -> dict:
-        return {"model": self.model, "fit": {k: round(v, 2) for k, v in self.base.fit.items()},
-                "noise_floor": {k: round(v, 2) for k, v in self.floor.items()},
-                "effective_samples": round(self.n_eff),
-                "candidates": [c.to_json() for c in self.candidates]}
+        res = self.base
+        out = {"model": self.model, "fit": {k: round(v, 2) for k, v in res.fit.items()},
+               "params": {n: {"value": float(v), "ci95": [float(lo), float(hi)], "unit": res.units[n]}
+                          for n, v, (lo, hi) in zip(res.names, res.values, res.ci95)},
+               "noise_floor": {k: round(v, 2) for k, v in self.floor.items()},
+               "noise_floor_stderr": {k: round(v, 3) for k, v in self.floor_se.items()},
+               "effective_samples": round(self.n_eff),
+               "candidates": [c.to_json() for c in self.candidates]}
+        return out
 
 
 def _lr(base, res, n_eff):
@@ -120,83 +165,122 @@ def screen_out(effect_cls, stretches) -> str:
 
 
 def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, base=None,
-                   stretches=None, candidates=None) -> Diagnosis:
-    stretches = stretches or dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
-    base_name, present = parse_model_name(model_name)
-    model = Model(model_name, vehicle)
+                   stretches=None, candidates=None, floor=None) -> Diagnosis:
+    stretches = stretches if stretches is not None else dataset.dynamic_stretches(runs)
+    _, present = parse_model_name(model_name)
     if progress:
         progress.step(f"fitting {model_name}")
-    base = base or fit_time(model, stretches)
+    base = base or fit(runs, vehicle, model_name, "time", stretches=stretches)
     ra = analyse(base.predictions)
     tau = max(ra.tau_int.values())
     n_eff = ra.n / tau
-    floor = noise_floor(stretches)
+    floor, floor_se = floor if floor is not None else noise_floor_uncertainty(stretches)
     cands = []
-    names = [n for n in (candidates or available_effects()) if n not in present]
-    for name in names:
-        cls = available_effects()[name]
+    for name in [n for n in (candidates or available_effects()) if n not in present]:
         c = Candidate(name)
-        c.skipped = screen_out(cls, stretches)
-        if c.skipped:
-            cands.append(c)
-            continue
-        if progress:
-            progress.step(f"trying +{name}")
+        c.skipped = screen_out(available_effects()[name], stretches)
         cands.append(c)
     todo = [c for c in cands if not c.skipped]
-    results = _fit_candidates(model_name, [c.effect for c in todo], vehicle, stretches, base.all_params(),
-                              base.extra.get("sigma"), progress)
+    results = _fit_candidates(model_name, [c.effect for c in todo], vehicle, stretches, base.all_params(), progress)
+    level = ALPHA / max(len(todo), 1)
     for c, res in zip(todo, results):
         c.result = res
         k = len(available_effects()[c.effect].params)
         c.lr = max(_lr(base, res, n_eff), 0.0)
         c.p_value = float(chdtrc(k, c.lr))
+        c.level = level
         c.gain = {o: res.fit[o] - base.fit[o] for o in OUTS}
         c.delta_bic = float(k * math.log(n_eff) - c.lr)
-    tested = [c for c in cands if not c.skipped]
-    level = ALPHA / max(len(tested), 1)
-    gap = {o: max(floor[o] - base.fit[o], 0.0) for o in OUTS}
-    for c in tested:
+    # (a floor the data are too short to estimate is nan: then only MIN_GAIN decides)
+    gap = {o: max(floor[o] - base.fit[o], 0.0) if np.isfinite(floor[o]) else 0.0 for o in OUTS}
+    for c in todo:
         # it must gain at least MIN_GAIN points, and a quarter of the gap to the noise floor
         # where there is one (a nonlinear effect can beat the linear floor: then MIN_GAIN decides)
         need = {o: max(MIN_GAIN, GAP_FRACTION * gap[o]) for o in OUTS}
         enough = [o for o in OUTS if c.gain[o] >= need[o]]
         best_gain = max(c.gain.values())
         if c.p_value >= level:
-            c.why_not = f"not more than chance (p = {c.p_value:.2g} >= {level:.2g})"
+            c.why_not = f"not more than chance: {p_in_words(c.p_value, level)}"
         elif best_gain < MIN_GAIN:
             c.why_not = f"gains only {best_gain:.2f} fit points"
         elif not enough:
             c.why_not = (f"closes less than {100 * GAP_FRACTION:.0f}% of the gap to the noise floor "
                          f"(gains {', '.join(f'{o} {c.gain[o]:.2f}' for o in OUTS)})")
         else:
-            c.significant = True
-    tested.sort(key=lambda c: (not c.significant, -c.lr))
-    _confusions(tested)
-    for c in tested:
-        c.explanation = explain(c, base, stretches)
-    ordered = tested + [c for c in cands if c.skipped]
-    return Diagnosis(model_name, base, floor, ra.tau_int, n_eff, ordered)
+            c.passes = True
+    todo.sort(key=lambda c: (not c.passes, -c.lr))
+    _name_one(todo, model_name, vehicle, stretches, progress)
+    for c in todo:
+        if c.result is not None:
+            c.explanation = explain(c, base, stretches)
+    ordered = todo + [c for c in cands if c.skipped]
+    return Diagnosis(model_name, base, floor, ra.tau_int, n_eff, ordered, floor_se=floor_se)
+
+
+def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
+    """Of the candidates that pass on their own, name at most one: the best, and only
+    when its evidence holds. The others are the same symptom (or not separable)."""
+    passing = [c for c in ranked if c.passes]
+    if not passing:
+        return
+    top = passing[0]
+    g_top = sum(top.gain.values())
+    for c in passing[1:]:
+        advice = None
+        if sum(c.gain.values()) >= 0.8 * g_top:
+            cls_top, cls_c = available_effects()[top.effect], available_effects()[c.effect]
+            advice = cls_top.confused_with.get(c.effect) or cls_c.confused_with.get(top.effect)
+        if advice:
+            top.separable_from[c.effect] = advice
+            c.separable_from[top.effect] = advice
+            c.why_not = f"cannot be told apart from {top.effect} on this data: {advice}"
+        else:
+            c.same_symptom_as = top.effect
+            c.why_not = f"the same symptom as {top.effect} (--peel tests it again once that is added)"
+    if progress:
+        progress.step(f"checking {top.effect} at each speed")
+    top.evidence = check_evidence(f"{model_name}+{top.effect}", top.effect, vehicle, stretches, top.result)
+    if not top.evidence.holds:
+        # two effects missing at once: the second bends the first's parameter differently at
+        # each speed. The first is still named if its value holds once one of the other
+        # passing candidates is fitted with it (that one is then tested in the next round).
+        for other in passing[1:5]:
+            name2 = f"{model_name}+{top.effect}+{other.effect}"
+            if progress:
+                progress.step(f"checking {top.effect} with {other.effect}")
+            init = dict(other.result.all_params(), **top.result.all_params())
+            both = fit((), vehicle, name2, "time", stretches=stretches, init=init, multistart=False)
+            ev = check_evidence(name2, top.effect, vehicle, stretches, both)
+            if ev.holds:
+                ev.reason = f"holds once {other.effect} is fitted with it (first: {top.evidence.reason})"
+                top.evidence = ev
+                break
+    if top.evidence.holds:
+        top.significant = True
+    else:
+        top.why_not = f"not named: {top.evidence.reason}"
 
 
 def _fit_one(args):
-    model_name, effect, vehicle, stretches, init, sigma = args
+    model_name, effect, vehicle, stretches, init = args
     m2 = Model(f"{model_name}+{effect}", vehicle)
-    init = dict(init)
     # start where the candidate equals the base model (its effect at zero) or at the effect's
-    # default, whichever fits better: a candidate must never end worse than its base
+    # default, whichever fits better: a candidate must never end worse than its base. Only the
+    # start is chosen here; what is minimised is the fit path's, as `stid fit` has it.
     cls = available_effects()[effect]
     at_zero = {p.name: (p.zero if p.zero is not None else p.value("init", vehicle)) for p in cls.params}
     for p in cls.params:  # log parameters cannot sit at 0: just above it, inside the bounds
         lo, hi = m2.bounds(p.name)
         at_zero[p.name] = min(max(at_zero[p.name], lo * 1.5 if p.log else lo), hi)
     default = {p.name: p.value("init", vehicle) for p in cls.params}
-    best = min((dict(init, **at_zero), dict(init, **default)),
-               key=lambda q: _cost(m2, stretches, q, sigma))
-    return fit_time(m2, stretches, init=best, multistart=False, sigma=sigma)
+    sigma = np.std(np.vstack([s.y for s in stretches]), axis=0)
+    best = min((dict(init, **at_zero), dict(init, **default)), key=lambda q: _cost(m2, stretches, q, sigma))
+    return fit((), vehicle, m2.name, "time", stretches=stretches, init=best, multistart=False)
 
 
 def _cost(model, stretches, p, sigma, discard_s=0.5):
+    from stid.fit.time_fit import _keep, simulate
+
     c = 0.0
     for st in stretches:
         k = _keep(st, discard_s)
@@ -204,11 +288,13 @@ def _cost(model, stretches, p, sigma, discard_s=0.5):
     return c
 
 
-def _fit_candidates(model_name, effects, vehicle, stretches, init, sigma, progress=None):
-    """Fit every candidate with the base's output weights, from the base's parameters, on
-    both cores when there are several (each fit is independent)."""
-    jobs = [(model_name, e, vehicle, stretches, init, sigma) for e in effects]
-    custom = [e for e in effects if available_effects()[e].__module__ not in _BUILTIN_MODULES]
+def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None):
+    """Fit every candidate from the base's parameters, on both cores when there are
+    several (each fit is independent)."""
+    jobs = [(model_name, e, vehicle, stretches, init) for e in effects]
+    # effects defined in the user's own modules (a test file, a notebook) may not be importable
+    # in a worker process: those rounds run in this process
+    custom = [e for e in effects if not available_effects()[e].__module__.startswith("stid.effects.")]
     if len(jobs) < 3 or custom or WORKERS < 2:
         out = []
         for j in jobs:
@@ -222,23 +308,6 @@ def _fit_candidates(model_name, effects, vehicle, stretches, init, sigma, progre
         progress.step(f"trying {len(jobs)} effects on {WORKERS} cores")
     with ProcessPoolExecutor(max_workers=WORKERS) as ex:
         return list(ex.map(_fit_one, jobs))
-
-
-def _confusions(tested) -> None:
-    sig = [c for c in tested if c.significant]
-    if not sig:
-        return
-    top = sig[0]
-    g_top = sum(top.gain.values())
-    for c in sig[1:]:
-        g = sum(c.gain.values())
-        if g >= 0.8 * g_top:
-            cls_top = available_effects()[top.effect]
-            cls_c = available_effects()[c.effect]
-            advice = cls_top.confused_with.get(c.effect) or cls_c.confused_with.get(top.effect)
-            if advice:
-                top.separable_from[c.effect] = advice
-                c.separable_from[top.effect] = advice
 
 
 def explain(c: Candidate, base, stretches) -> str:
@@ -272,7 +341,7 @@ def explain(c: Candidate, base, stretches) -> str:
                 f"{math.degrees(p['bias_r']):+.2f} deg/s, accelerometer offset {p['bias_ay']:+.3f} m/s^2 "
                 "left after calibration")
     else:
-        ps = ", ".join(f"{n} = {v:.4g} {res.units.get(n, '')}" for n, v in p.items() if res.owners.get(n) == c.effect)
+        ps = ", ".join(f"{n} = {v:.4g} {res.units.get(n, '')}" for n, v in c.own_params().items())
         lead = f"{cls.signature}: {c.effect} ({ps})" if cls.signature else f"{c.effect} ({ps})"
     text = f"{lead}. Adding it: {gain}."
     if c.separable_from:
@@ -283,20 +352,32 @@ def explain(c: Candidate, base, stretches) -> str:
 
 def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max_steps: int = 4,
              progress=None, candidates=None) -> list[Diagnosis]:
-    """One round, or (peel) rounds adding the winner until nothing significant remains.
+    """One round, or (peel) rounds adding the winner until nothing is named. The last
+    round carries ``unexplained``: what remains, and where.
     ``candidates``: effect names to try (default: every registered effect)."""
     Model(model_name, vehicle)  # a misspelt model is the user's first mistake to hear about
-    stretches = dataset.dynamic_stretches(runs, target_fs=DIAGNOSIS_FS)
+    stretches = dataset.dynamic_stretches(runs)  # built once: every fit of every round uses them
+    floor = noise_floor_uncertainty(stretches)
     rounds = []
     name = model_name
     base = None
     for _ in range(max_steps if peel else 1):
         d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches,
-                           candidates=candidates)
+                           candidates=candidates, floor=floor)
+        d.stretches = stretches
         rounds.append(d)
         best = d.best
         if best is None or best.separable_from:
             break
         name = f"{name}+{best.effect}"
         base = best.result
+    last = rounds[-1]
+    if progress:
+        progress.step("looking where the error remains")
+    named = last.best
+    final_name, final = (f"{last.model}+{named.effect}", named.result) if named else (last.model, last.base)
+    reasons = [f"{c.effect} is {c.why_not}" for c in last.candidates
+               if c.evidence is not None and not c.evidence.holds]
+    last.unexplained = describe_unexplained(final_name, final, vehicle, stretches, floor[0], floor[1], reasons,
+                                            catalogue_done=named is None)
     return rounds

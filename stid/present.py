@@ -1,66 +1,141 @@
 """Human-readable text for diagnose and compare results (the numbers live in the
-result objects; this only lays them out)."""
+result objects; this only lays them out, for a person who reads it once)."""
 
 from __future__ import annotations
 
+import shlex
+import textwrap
+
 import numpy as np
+
+WIDTH = 100
 
 
 def _pct(x) -> str:
     return f"{x:5.1f}%" if np.isfinite(x) else "   - "
 
 
-def diagnosis_text(rounds, vehicle_name: str = "") -> str:
+def _wrap(text: str, indent: str = "  ", first: str | None = None) -> list:
+    return textwrap.wrap(text, WIDTH, initial_indent=first if first is not None else indent,
+                         subsequent_indent=indent + "  ") or [indent]
+
+
+def _params_with_intervals(res, owner=None) -> str:
+    ci = dict(zip(res.names, res.ci95))
+    out = []
+    for n, v in res.params().items():
+        if owner is not None and res.owners.get(n) != owner:
+            continue
+        lo, hi = ci[n]
+        out.append(f"{n} = {v:.4g} [{lo:.4g}, {hi:.4g}] {res.units.get(n, '')}".rstrip())
+    return ", ".join(out)
+
+
+def _command(runs, vehicle_path, *rest) -> str:
+    parts = ["stid", *rest[:1], *(runs or ["RUN..."]), "--vehicle", vehicle_path or "V.toml", *rest[1:]]
+    return " ".join(shlex.quote(str(p)) for p in parts)
+
+
+def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> str:
+    """What to add first, why, what the others are, and the next command."""
     lines = []
     for k, d in enumerate(rounds):
         speeds = sorted({round(p.vx, 1) for p in d.base.predictions})
         head = "" if k == 0 else f"step {k + 1}: "
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
-                     f"noise floor ay {d.floor['ay']:.1f}%, r {d.floor['r']:.1f}%   "
-                     f"({len(d.base.predictions)} stretches at {', '.join(f'{v:g}' for v in speeds)} m/s)")
-        lines.append(f"  {'candidate':<18}{'fit ay':>8}{'fit r':>8}{'LR':>9}{'p':>10}   verdict")
+                     f"noise floor ay {d.floor['ay']:.1f}%, r {d.floor['r']:.1f}% "
+                     f"(what a correct model reaches here)   "
+                     f"[{len(d.base.predictions)} stretches at {', '.join(f'{v:g}' for v in speeds)} m/s]")
+        lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:
             if c.skipped:
-                lines.append(f"  {c.effect:<18}{'':>8}{'':>8}{'':>9}{'':>10}   not tested: {c.skipped}")
+                lines.extend(_wrap(f"{c.effect:<22}{'':>8}{'':>8}   not tested: {c.skipped}"))
                 continue
-            verdict = "SIGNIFICANT" if c.significant else c.why_not
-            p = f"{c.p_value:.1e}" if c.p_value > 0 else "<1e-300"
-            lines.append(f"  {c.effect:<18}{_pct(c.result.fit['ay']):>8}{_pct(c.result.fit['r']):>8}"
-                         f"{c.lr:9.0f}{p:>10}   {verdict}")
+            verdict = "NAMED: " + c.p_words() if c.significant else c.why_not
+            lines.extend(_wrap(f"{c.effect:<22}{_pct(c.result.fit['ay']):>8}{_pct(c.result.fit['r']):>8}   "
+                               f"{verdict}", indent="  " + " " * 41, first="  "))
         best = d.best
         if best is not None:
-            lines.append(f"  => {best.effect}: {best.explanation}")
-            params = ", ".join(f"{n} = {v:.4g} {best.result.units[n]}" for n, v in best.result.params().items()
-                               if best.result.owners.get(n) == best.effect)
-            lines.append(f"     ({params}; add it with --model {d.model}+{best.effect})")
+            same = [c.effect for c in d.same_symptom]
+            first = f"=> add {best.effect} first"
+            if same:
+                first += f" ({', '.join(same)}: the same symptom, not separate effects)"
+            lines.extend(_wrap(first, first="  "))
+            lines.extend(_wrap(best.explanation, indent="     "))
+            lines.extend(_wrap(f"{best.effect}: {_params_with_intervals(best.result, best.effect)} (95%)",
+                               indent="     "))
         elif d.base.fit["ay"] >= d.floor["ay"] - 0.5 and d.base.fit["r"] >= d.floor["r"] - 0.5:
-            lines.append("  => nothing significant is missing: the model is at the noise floor of this data")
+            lines.append("  => nothing is missing that this data can show: the model is at the noise floor")
         else:
-            lines.append("  => no candidate of the catalogue explains the remaining error significantly; "
-                         "the gap to the noise floor may be an effect not in the catalogue (write one: "
-                         "docs/writing_an_effect.md)")
+            lines.extend(_wrap("=> no effect of the catalogue explains the remaining error (see 'unexplained' "
+                               "below)", first="  "))
         lines.append("")
+    last = rounds[-1]
+    u = last.unexplained
+    if u is not None and (u.significant or any(v > 0.5 for v in u.gap.values())):
+        lines.append(f"unexplained after {u.model}" + (" (significant)" if u.significant else "") + ":")
+        for w in u.where:
+            lines.extend(_wrap("- " + w, indent="    ", first="  "))
+        if u.significant:
+            lines.extend(_wrap("an effect the catalogue lacks: write it (docs/writing_an_effect.md), hide it in "
+                               "the simulator (stid-sim --effect-file) and see it found", first="  "))
+        lines.append("")
+    final = last.model if last.best is None else f"{last.model}+{last.best.effect}"
+    if last.best is not None and not peel:
+        nxt = _command(runs, vehicle_path, "diagnose", "--model", final)
+        lines.append(f"next: {nxt}")
+    elif final != rounds[0].model or last.best is not None:
+        lines.append(f"next: {_command(runs, vehicle_path, 'fit', '--model', final)}")
     return "\n".join(lines).rstrip()
 
 
 def comparison_text(entries) -> str:
+    """One table: headers above the rows, full model names, then the verdict."""
     lines = []
     names = [e["model"] for e in entries]
     w = max(14, max(len(n) for n in names) + 2)
-    lines.append(f"{'model':<{w}}{'fit ay':>8}{'fit r':>8}{'AIC':>12}{'BIC':>12}{'white':>8}{'indep.':>8}")
+    validated = entries[0].get("validated_on")
+    where = f"judged on {', '.join(validated)} (not fitted to)" if validated else "judged on the fitted runs"
+    lines.append(f"fit percent {where}; AIC/BIC from the Gaussian likelihood of the fit")
+    lines.append(f"{'model':<{w}}{'fit ay':>8}{'fit r':>8}{'AIC':>12}{'BIC':>12}  residual white   indep. of steer")
     for e in entries:
+        white = " ".join(o for o, v in e["white"].items() if v) or "no"
+        indep = " ".join(o for o, v in e["independent"].items() if v) or "no"
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
-                     f"{e['bic']:12.0f}{'ay r' if all(e['white'].values()) else ','.join(k for k, v in e['white'].items() if v) or 'no':>8}"
-                     f"{'yes' if all(e['independent'].values()) else 'no':>8}")
-    lines.append(f"{'noise floor':<{w}}{_pct(entries[0]['noise_floor']['ay']):>8}{_pct(entries[0]['noise_floor']['r']):>8}")
-    lines.append("  (AIC/BIC from the Gaussian likelihood; white: residual autocorrelation inside the 99% band; "
-                 "indep.: residual-steer cross-correlation inside it)")
+                     f"{e['bic']:12.0f}  {white:<15}  {indep}")
+    fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {})
+    lines.append(f"{'noise floor':<{w}}{_pct(fl['ay']):>8}{_pct(fl['r']):>8}   (what a correct model reaches; "
+                 f"+-{se.get('ay', float('nan')):.2f} / {se.get('r', float('nan')):.2f})")
+    lines.extend(_wrap("(white: residual autocorrelation inside the 99% band; indep.: residual-steer "
+                       "cross-correlation inside it. At the noise floor a residual may still be coloured: the "
+                       "sensor noise is filtered too)", indent="", first=""))
+    lines.append("")
+    lines.append(_verdict(entries))
     for title, key in (("fit per frequency band", "by_band"), ("fit per |ay| bin", "by_ay"), ("fit per run", "by_run")):
         lines.append("")
-        lines.append(title + "  (ay / r)")
-        rows = list(entries[0][key])
-        for row in rows:
-            cells = "".join(f"{_pct(e[key][row]['ay'])}/{_pct(e[key][row]['r']).strip():<7}" for e in entries)
+        lines.append(f"{title} (ay / r):")
+        cw = max(16, max(len(n) for n in names) + 2)
+        lines.append(f"  {'':<28}" + "".join(f"{n:<{cw}}" for n in names))
+        for row in entries[0][key]:
+            cells = "".join(f"{_pct(e[key][row]['ay']).strip() + ' / ' + _pct(e[key][row]['r']).strip():<{cw}}"
+                            for e in entries)
             lines.append(f"  {row:<28}{cells}")
-        lines.append(f"  {'':<28}" + "".join(f"{n[:14]:<15}" for n in names))
     return "\n".join(lines)
+
+
+def _verdict(entries) -> str:
+    fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
+    best = min(entries, key=lambda e: e["bic"])
+
+    def short(e):
+        return {o: fl[o] - e["fit"][o] for o in ("ay", "r")
+                if fl[o] - e["fit"][o] > max(0.5, 2.576 * se.get(o, 0.0))}
+
+    gap = short(best)
+    text = f"verdict: {best['model']} is the best of these by BIC"
+    if not gap:
+        text += " and reaches the noise floor: nothing more this data can show"
+    else:
+        text += (" but stays " + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
+                 + " short of the noise floor: run `stid diagnose --model " + best["model"] + "` to see what is missing")
+    return text

@@ -21,16 +21,38 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from stid.analysis.compare import breakdown  # noqa: E402
 from stid.analysis.residuals import analyse  # noqa: E402
+from stid.compare import breakdown  # noqa: E402
 from stid.diagnose import diagnose  # noqa: E402
-from stid.fit import dataset  # noqa: E402
 from stid.fit.frf import estimate_frf  # noqa: E402
 from stid.fit.steady_fit import fit_steady  # noqa: E402
 from stid.models.model import Model  # noqa: E402
 from stid.present import diagnosis_text  # noqa: E402
 
-COLORS = ("#888888", "#1f77b4", "#d62728", "#2ca02c", "#9467bd")
+COLORS = ("#888888", "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b")
+
+
+def _color(k: int, n: int) -> str:
+    """The first model grey, the last red, those between in order."""
+    if k == 0:
+        return COLORS[0]
+    if k == n - 1:
+        return COLORS[2]
+    return ((COLORS[1],) + COLORS[3:])[(k - 1) % (len(COLORS) - 2)]
+
+
+def _legend_below(fig, axes, ncol=3):
+    """One legend under the figure, never over the data."""
+    handles, labels = [], []
+    for ax in np.ravel(axes):
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=min(ncol, len(labels)), fontsize=8,
+                   bbox_to_anchor=(0.5, -0.02), frameon=False)
+        fig.subplots_adjust(bottom=0.18)
 
 
 def _png(fig) -> str:
@@ -60,8 +82,7 @@ def error_fall_figure(chain, floor):
             ax.annotate(f"{v:.1f}%", (xi, v), textcoords="offset points", xytext=(0, 8), ha="center")
         ax.axhline(floor[out], color="k", ls="--", lw=1, label=f"noise floor {floor[out]:.1f}%")
         ax.set_xticks(x, labels, rotation=15)
-        ax.set_title(title)
-        ax.legend(loc="lower right")
+        ax.set_title(f"{title} (floor {floor[out]:.1f}%, dashed)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("fit [%]  100 (1 - |y - yhat| / |y - mean y|)")
     lo = min(min(res.fit.values()) for _, res in chain)
@@ -71,21 +92,46 @@ def error_fall_figure(chain, floor):
 
 
 def time_figure(chain, window_s=8.0):
-    first, last = chain[0][1], chain[-1][1]
-    fig, axes = plt.subplots(2, 1, figsize=(10, 5.2), sharex=True)
-    p0 = first.predictions[0]
-    pl = last.predictions[0]
+    """Measured and every model of the chain, and below each output its residuals."""
+    n = len(chain)
+    fig, axes = plt.subplots(4, 1, figsize=(10, 8.5), sharex=True, gridspec_kw={"height_ratios": [2, 1, 2, 1]})
+    p0 = chain[0][1].predictions[0]
     t = p0.t - p0.t[0]
     m = (t >= 2.0) & (t <= 2.0 + window_s)
-    for i, (ax, lab) in enumerate(zip(axes, ("ay [m/s^2]", "r [rad/s]"))):
-        ax.plot(t[m], p0.y[m, i], color="k", lw=1.2, label="measured")
-        ax.plot(t[m], p0.yhat[m, i], color=COLORS[0], lw=1.2, label=chain[0][0])
-        ax.plot(t[m], pl.yhat[m, i], color=COLORS[2], lw=1.2, ls="--", label=chain[-1][0])
+    for i, lab in enumerate(("ay [m/s^2]", "r [rad/s]")):
+        ax, axr = axes[2 * i], axes[2 * i + 1]
+        ax.plot(t[m], p0.y[m, i], color="k", lw=1.4, label="measured")
+        for k, (name, res) in enumerate(chain):
+            pk = res.predictions[0]
+            ax.plot(t[m], pk.yhat[m, i], color=_color(k, n), lw=1.1, ls="-" if k == n - 1 else "--", label=name)
+            axr.plot(t[m], (pk.y - pk.yhat)[m, i], color=_color(k, n), lw=0.9)
         ax.set_ylabel(lab)
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[1].set_xlabel(f"time [s]  ({p0.name}, {p0.vx:.1f} m/s)")
-    fig.suptitle("Measured and simulated with the measured steer (ISO 8855: left positive)")
+        axr.set_ylabel("residual")
+        axr.axhline(0, color="k", lw=0.5)
+        for a_ in (ax, axr):
+            a_.grid(alpha=0.3)
+    axes[-1].set_xlabel(f"time [s]  ({p0.name}, {p0.vx:.1f} m/s)")
+    fig.suptitle("Measured and simulated with the measured steer, and what each model leaves (ISO 8855: left positive)")
+    _legend_below(fig, axes, ncol=min(4, n + 1))
+    fig.subplots_adjust(bottom=0.12)
+    return fig
+
+
+def overview_figure(runs):
+    """What was logged: speed, steer, ay and r of every run, so the reader knows the data."""
+    fig, axes = plt.subplots(4, 1, figsize=(10, 6.5), sharex=True)
+    for k, run in enumerate(runs):
+        col = COLORS[(k + 1) % len(COLORS)]
+        t = run.t - run.t[0]
+        for ax, y, lab in zip(axes, (run.vx, np.degrees(run.steer), run.ay, run.r),
+                              ("vx [m/s]", "steer [deg]", "ay [m/s^2]", "r [rad/s]")):
+            ax.plot(t, y, color=col, lw=0.7, label=run.name)
+            ax.set_ylabel(lab)
+            ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle("The logged runs (as loaded and calibrated, before any filtering)")
+    _legend_below(fig, axes, ncol=2)
+    fig.subplots_adjust(bottom=0.13)
     return fig
 
 
@@ -100,14 +146,15 @@ def bode_figure(chain, stretches, vehicle):
             axes[0, j].loglog(fr.f, np.abs(fr.H[j]), ".", color=col, ms=4, label=f"measured {st.vx:.1f} m/s")
             axes[1, j].semilogx(fr.f, np.degrees(np.unwrap(np.angle(fr.H[j]))), ".", color=col, ms=4)
             axes[2, j].semilogx(fr.f, fr.coh[j], color=col, lw=1)
-            for (name, res), ls in zip((chain[0], chain[-1]), (":", "-")):
+            styles = (":", "-.", "--", "-")
+            for m_i, (name, res) in enumerate(chain):
+                ls = "-" if m_i == len(chain) - 1 else styles[m_i % 3]
                 model = Model(name, vehicle)
                 H = model.freqresp(res.all_params(), fr.f, st.vx, st.sensors)[j]
-                axes[0, j].loglog(fr.f, np.abs(H), ls, color=col, lw=1.2,
-                                  label=name if k == 0 else None)
-                axes[1, j].semilogx(fr.f, np.degrees(np.unwrap(np.angle(H))), ls, color=col, lw=1.2)
+                axes[0, j].loglog(fr.f, np.abs(H), ls, color=col, lw=1.1,
+                                  label=f"{name} ({ls})" if k == 0 and j == 0 else None)
+                axes[1, j].semilogx(fr.f, np.degrees(np.unwrap(np.angle(H))), ls, color=col, lw=1.1)
             axes[0, j].set_title(out)
-    axes[0, 0].legend(fontsize=7)
     axes[0, 0].set_ylabel("magnitude")
     axes[1, 0].set_ylabel("phase [deg]")
     axes[2, 0].set_ylabel("coherence")
@@ -124,14 +171,17 @@ def bode_figure(chain, stretches, vehicle):
     for ax in axes[0]:
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    fig.suptitle(f"Frequency responses (H1, Welch) with coherence; dotted {chain[0][0]}, solid {chain[-1][0]}"
-                 + ("" if n <= 3 else f" (first 3 of {n} stretches)"))
+    fig.suptitle("Frequency responses (H1, Welch) with coherence; one colour per stretch, one line style per "
+                 "model" + ("" if n <= 3 else f" (first 3 of {n} stretches)"))
+    _legend_below(fig, axes, ncol=3)
+    fig.subplots_adjust(bottom=0.14)
     return fig
 
 
 def residual_figure(chain):
-    fig, axes = plt.subplots(2, 2, figsize=(10, 5.5))
-    for (name, res), col in zip((chain[0], chain[-1]), (COLORS[0], COLORS[2])):
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6))
+    for k, (name, res) in enumerate(chain):
+        col = _color(k, len(chain))
         ra = analyse(res.predictions)
         L = len(ra.lags_s) // 2
         for j, out in enumerate(("ay", "r")):
@@ -144,9 +194,9 @@ def residual_figure(chain):
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
         ax.set_xlabel("lag [s]")
-    axes[0, 0].legend(fontsize=8)
     fig.suptitle("Residual analysis with 99% bands (shaded; cross-correlation bands allow for coloured signals)")
     fig.tight_layout()
+    _legend_below(fig, axes)
     return fig
 
 
@@ -154,7 +204,7 @@ def spectrum_figure(chain, stretches):
     """Residual spectra of the first and last model against the noise floor's (the FIR
     predictor's cross-validated error): where a model's residual sits above the floor,
     something the steer explains is still missing there."""
-    from scipy import signal
+    from scipy import signal  # the report draws; its import time is not a command's
 
     from stid.analysis.noise_floor import floor_errors
 
@@ -163,9 +213,11 @@ def spectrum_figure(chain, stretches):
     fs = 1.0 / stretches[0].dt
     nper = int(4 * fs)
     for j, (ax, out) in enumerate(zip(axes, ("ay", "r"))):
-        f, P = signal.welch(np.concatenate(fl[out]), fs=fs, nperseg=nper)
-        ax.semilogy(f, P, color="k", lw=1.5, label="noise floor (best linear predictor)")
-        for (name, res), col in zip((chain[0], chain[-1]), (COLORS[0], COLORS[2])):
+        if fl[out]:  # (runs too short for the floor's predictor have none)
+            f, P = signal.welch(np.concatenate(fl[out]), fs=fs, nperseg=nper)
+            ax.semilogy(f, P, color="k", lw=1.5, label="noise floor (what a correct model leaves)")
+        for k, (name, res) in enumerate(chain):
+            col = _color(k, len(chain))
             e = np.concatenate([(p.y - p.yhat)[p.keep, j] for p in res.predictions])
             f2, Pe = signal.welch(e - e.mean(), fs=fs, nperseg=nper)
             ax.semilogy(f2, Pe, color=col, lw=1.2, label=name)
@@ -173,25 +225,63 @@ def spectrum_figure(chain, stretches):
         ax.set_xlabel("frequency [Hz]")
         ax.set_title(f"{out} residual spectrum [{'(m/s^2)^2/Hz' if out == 'ay' else '(rad/s)^2/Hz'}]")
         ax.grid(alpha=0.3, which="both")
-    axes[0].legend(fontsize=8)
     fig.suptitle("Residual spectra against the noise floor")
     fig.tight_layout()
+    _legend_below(fig, axes)
     return fig
 
 
 def by_ay_figure(chain):
-    fig, ax = plt.subplots(figsize=(7, 3.4))
-    first, last = chain[0][1], chain[-1][1]
-    bd0, bd1 = breakdown(first.predictions), breakdown(last.predictions)
-    bins = list(bd0.by_ay)
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    bds = [breakdown(res.predictions) for _, res in chain]
+    bins = list(bds[0].by_ay)
     x = np.arange(len(bins))
-    ax.bar(x - 0.2, [bd0.by_ay[b]["ay"] for b in bins], 0.4, color=COLORS[0], label=chain[0][0])
-    ax.bar(x + 0.2, [bd1.by_ay[b]["ay"] for b in bins], 0.4, color=COLORS[2], label=chain[-1][0])
+    w = 0.8 / len(chain)
+    for k, ((name, _), bd) in enumerate(zip(chain, bds)):
+        ax.bar(x - 0.4 + (k + 0.5) * w, [bd.by_ay[b]["ay"] for b in bins], w, color=_color(k, len(chain)), label=name)
     ax.set_xticks(x, bins, rotation=10)
     ax.set_ylabel("ay fit in the bin [%]")
     ax.set_title("Where the error lives: linear range vs the friction limit")
-    ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
+    _legend_below(fig, ax)
+    fig.subplots_adjust(bottom=0.3)
+    return fig
+
+
+def unexplained_figure(u):
+    """Where the last model still fails against the floor: per band, per amplitude, and
+    what its residual follows (the same numbers as the text's 'unexplained')."""
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.8))
+    outs = ("ay", "r")
+    for j, o in enumerate(outs):
+        rows = u.by_band.get(o, [])
+        x = np.arange(len(rows))
+        axes[0].bar(x + (j - 0.5) * 0.4, [r[1] / r[2] if r[2] > 0 else np.nan for r in rows], 0.4,
+                    color=COLORS[1 + 2 * j], label=o)
+        axes[0].set_xticks(x, [r[0] for r in rows], rotation=15, fontsize=8)
+    axes[0].axhline(1.0, color="k", lw=1, ls="--")
+    axes[0].set_title("residual rms / floor's, per band")
+    for j, o in enumerate(outs):
+        rows = u.by_amplitude.get("|steer|", {}).get(o, [])
+        if rows:
+            axes[1].plot([r[0] for r in rows], [100 * r[2] for r in rows], "o-", color=COLORS[1 + 2 * j], label=o)
+    axes[1].set_title("residual rms / output rms per |steer| third [%]")
+    axes[1].tick_params(axis="x", labelsize=8)
+    names, vals, cols = [], [], []
+    for j, o in enumerate(outs):
+        for n, c, band in u.follows.get(o, [])[:4]:
+            names.append(f"{o}: {n}")
+            vals.append(c)
+            cols.append(COLORS[1 + 2 * j] if abs(c) > band else "#cccccc")
+    axes[2].barh(np.arange(len(vals)), vals, color=cols)
+    axes[2].set_yticks(np.arange(len(vals)), names, fontsize=8)
+    axes[2].axvline(0, color="k", lw=0.5)
+    axes[2].set_title("what the residual follows (grey: chance)")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Where {u.model} still fails")
+    fig.tight_layout()
+    _legend_below(fig, axes[:2], ncol=2)
     return fig
 
 
@@ -227,39 +317,46 @@ def steady_figure(runs, vehicle):
 
 def _params_table(res) -> str:
     rows = []
-    for n, v, se in zip(res.names, res.values, res.stderr):
-        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>{html.escape(res.units[n])}</td>"
-                    f"<td>{html.escape(res.owners.get(n, ''))}</td></tr>")
+    for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95):
+        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>[{lo:.5g}, {hi:.5g}]</td>"
+                    f"<td>{html.escape(res.units[n])}</td><td>{html.escape(res.owners.get(n, ''))}</td></tr>")
     for n, (v, unit, why) in res.fixed.items():
-        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>fixed</td><td>{html.escape(unit)}</td>"
+        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>fixed</td><td></td><td>{html.escape(unit)}</td>"
                     f"<td>{html.escape(why)}</td></tr>")
-    return ("<table><tr><th>parameter</th><th>value</th><th>std. error</th><th>unit</th><th>from</th></tr>"
-            + "".join(rows) + "</table>")
+    return ("<table><tr><th>parameter</th><th>value</th><th>std. error</th><th>95% interval</th><th>unit</th>"
+            "<th>from</th></tr>" + "".join(rows) + "</table>"
+            + (f"<p class='note'>{html.escape(res.interval)}</p>" if res.interval else ""))
 
 
-def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None) -> Path:
+def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None) -> Path:
+    """The page for ``runs``; ``rounds``: a ``diagnose(..., peel=True)`` already made of them."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rounds = diagnose(runs, vehicle, model_name, peel=True, progress=progress)
+    rounds = rounds or diagnose(runs, vehicle, model_name, peel=True, progress=progress)
     chain = chain_of(rounds)
-    stretches = dataset.dynamic_stretches(runs, target_fs=50.0)
+    stretches = rounds[-1].stretches  # the data every fit of the diagnosis used
     floor = rounds[0].floor
     if progress:
         progress.step("drawing figures")
-    figs = [("The error falls", error_fall_figure(chain, floor)),
+    figs = [("The logged runs", overview_figure(runs)),
+            ("The error falls", error_fall_figure(chain, floor)),
             ("Measured vs model in time", time_figure(chain)),
             ("Measured vs model in frequency", bode_figure(chain, stretches, vehicle)),
             ("Where the error lives", by_ay_figure(chain)),
             ("Residual analysis", residual_figure(chain)),
             ("Residual spectra against the noise floor", spectrum_figure(chain, stretches))]
+    u = rounds[-1].unexplained
+    if u is not None and u.by_band:
+        figs.append((f"Where {u.model} still fails", unexplained_figure(u)))
     sfig, sres = steady_figure(runs, vehicle)
     if sfig is not None:
-        figs.insert(3, ("Steady-state cornering", sfig))
+        figs.insert(4, ("Steady-state cornering", sfig))
     parts = [f"<h1>stid report: {html.escape(vehicle.name)}</h1>",
              f"<p>{len(runs)} run(s): {html.escape(', '.join(r.name for r in runs))}. "
              f"Generated {time.strftime('%Y-%m-%d %H:%M')}. Units SI, ISO 8855 axes (x forward, y left, z up), "
              "cornering stiffness per axle in N/rad.</p>",
-             "<h2>Diagnosis</h2><pre>" + html.escape(diagnosis_text(rounds)) + "</pre>",
+             "<h2>Diagnosis</h2><pre>" + html.escape(diagnosis_text(rounds, [r.name for r in runs], vehicle.name,
+                                                                    peel=True)) + "</pre>",
              "<h2>Along the chain</h2>"]
     for name, res in chain:
         parts.append(f"<h3>{html.escape(name)}: fit ay {res.fit['ay']:.1f}%, r {res.fit['r']:.1f}%</h3>")
@@ -274,8 +371,8 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
         parts.append(f"<h2>{html.escape(title)}</h2><img src='data:image/png;base64,{_png(fig)}'>")
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;"
-             "text-align:right}pre{background:#f6f6f6;padding:1em;overflow-x:auto;font-size:12px}"
-             "img{max-width:100%}.warn{color:#a60}")
+             "text-align:right}pre{background:#f6f6f6;padding:1em;white-space:pre-wrap;overflow-wrap:anywhere;"
+             "font-size:12px}img{max-width:100%}.warn{color:#a60}.note{color:#555;font-size:90%}")
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>stid report</title><style>{style}</style>"
             f"</head><body>{''.join(parts)}</body></html>")
     path = out_dir / "report.html"

@@ -17,9 +17,13 @@ def test_report_is_self_contained_and_tells_the_story(simdir, tmp_path):
     page = (tmp_path / "rep" / "report.html").read_text()
     assert r.stdout.strip().endswith("report.html")
     images = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", page)
-    assert len(images) >= 6  # error fall, time, Bode, |ay| bins, residual correlations, residual spectra
+    assert len(images) >= 7  # runs, error fall, time, Bode, |ay| bins, residual correlations, residual spectra
     assert all(base64.b64decode(i)[:8] == b"\x89PNG\r\n\x1a\n" for i in images)
     assert "src='http" not in page and 'src="http' not in page  # nothing fetched from outside
     for text in ("bicycle+actuator_lag", "accel_offset", "N/rad", "noise floor", "The error falls",
-                 "Residual spectra against the noise floor"):
+                 "Residual spectra against the noise floor", "The logged runs", "95% interval"):
         assert text in page, text
+    assert "white-space:pre-wrap" in page  # the diagnosis text wraps instead of scrolling
+    # every model of the chain has its parameters on the page (with intervals)
+    chain = re.findall(r"<h3>([^<:]+): fit ay", page)
+    assert len(chain) == 3 and chain[0] == "bicycle" and chain[-1].count("+") == 2, chain

@@ -1,89 +1,183 @@
-"""The noise floor: the best fit percent a linear model driven by the measured steer
-(at the measured speed) can reach on this data, so the user knows when to stop adding
-effects.
+"""The noise floor: an estimate of the fit percent a *correct* model reaches on this
+data (the part of ay and r the measured steer, at the measured speed, cannot
+explain: sensor noise, vibration), so the user knows when to stop adding effects.
 
 It is estimated without any vehicle model: a long FIR predictor (1 s of steer
-history and a constant) is fitted by least squares to one half of each stretch and
-scored on the other, and vice versa (two-fold cross-validation keeps it from
-counting noise as signal). What it cannot predict (noise, vibration, and
-nonlinearity) no linear model can. A nonlinear effect can beat this linear floor
-slightly. (Coherence would say the same in principle, but Welch coherence is
-biased low by response delays and leakage, and the floor came out below fits
-actually reached.)
+history and a constant) is fitted by least squares to four fifths of the data
+and scored on the fifth left out, five times (cross-validation keeps it from
+counting noise as signal). Two things kept the first version of this estimate
+below what a correct model reaches, so a correct model "beat the floor":
 
-On a track run the speed swings, and one impulse response cannot follow the car
-through it: the predictor's taps then vary with the speed, h_j(v) = h0_j + h1_j d +
-h2_j d^2 with d = v/median(v) - 1 taken at the output's time (the frozen-speed
-response, which is what a slowly varying car has). Samples lost on the link are
-neither trained on nor scored."""
+- the car's response changes with speed, and even a "constant" 4 m/s run swings by
+  a few percent (ay ~ vx r): one impulse response cannot follow that. The taps vary
+  with the speed, d = v/median(v) - 1, both where the speed scales the response
+  (the output's time: h_j(1 + c1 d + c2 d^2)) and where it scales the input (the
+  steer's time: FIR of steer*d and steer*d^2), the frozen-speed response of a
+  slowly varying car to second order;
+- a predictor with p taps trained on n samples carries its own estimation error
+  into the score: out of sample its mean square error is about sigma^2 (1 + p tau/n),
+  p the effective number of parameters and tau the noise's integrated
+  autocorrelation time (the data are prefiltered at 20 Hz and sampled at 100 Hz, so the noise is
+  coloured). The scored errors are divided by that factor's square root.
+
+What it still cannot predict (noise, and a nonlinearity no linear response at the
+measured speed has) no model of that family can; a nonlinear effect may beat it.
+``noise_floor_uncertainty`` is the delete-a-fold jackknife's standard error of the
+floor: a model above the floor by more than about twice that is a sign the
+estimator is wrong. Samples lost on the link are neither trained on nor scored."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import toeplitz
 
+from stid.stats import tau_int
+
 MEMORY_S = 1.0
+FOLDS = 5
+OUTS = ("ay", "r")
 
 
-def _design(u: np.ndarray, taps: int) -> np.ndarray:
-    col = u
+def _fir_columns(u: np.ndarray, taps: int) -> np.ndarray:
     row = np.zeros(taps)
     row[0] = u[0]
-    X = toeplitz(col, row)
-    return np.column_stack([X, np.ones(len(u))])
+    return toeplitz(u, row)
 
 
-SPEED_VARIES = 0.03  # relative speed spread (10-90%) above which the taps follow the speed
-
-
-def _fir_cv(u: np.ndarray, y: np.ndarray, taps: int, ridge: float = 1e-6, vx=None, valid=None) -> np.ndarray:
-    """Two-fold cross-validated FIR prediction of y from u (prediction for every sample)."""
-    X = _design(u - u.mean(), taps)
+def _design(u: np.ndarray, vx, taps: int, v_ref: float) -> np.ndarray:
+    # the steer itself, not its deviation from the mean: the response to the mean steer
+    # changes with the speed too, and a centred input would leave it out
+    u0 = np.asarray(u, float)
+    base = _fir_columns(u0, taps)
+    cols = [base]
     if vx is not None:
-        d = np.asarray(vx, float) / np.median(vx) - 1.0
-        if np.percentile(d, 90) - np.percentile(d, 10) > SPEED_VARIES:
-            fir = X[:, :-1]
-            X = np.column_stack([fir, fir * d[:, None], fir * (d * d)[:, None], X[:, -1:]])
-    n = len(u)
-    ok = np.ones(n, bool) if valid is None else np.asarray(valid, bool)
-    half = n // 2
-    pred = np.empty(n)
-    for tr, te in ((slice(taps, half), slice(half, n)), (slice(half + taps, n), slice(0, half))):
-        A, b = X[tr][ok[tr]], y[tr][ok[tr]]
-        reg = ridge * np.trace(A.T @ A) / A.shape[1] * np.eye(A.shape[1])
-        w = np.linalg.solve(A.T @ A + reg, A.T @ b)
-        pred[te] = X[te] @ w
-    return pred
+        d = np.asarray(vx, float) / v_ref - 1.0
+        for k in (1, 2):
+            cols.append(base * (d ** k)[:, None])  # speed at the output's time
+            cols.append(_fir_columns(u0 * d ** k, taps))  # speed at the steer's time
+    return np.column_stack(cols + [np.ones(len(u))])
 
 
-def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> tuple[dict, dict]:
-    """The FIR predictor's cross-validated errors (the floor, sample by sample) and the
-    outputs they belong to, per output: lists of arrays, one per stretch."""
-    err = {"ay": [], "r": []}
-    ref = {"ay": [], "r": []}
+def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5, with_folds: bool = False,
+                 ridge: float = 1e-6):
+    """The predictor's cross-validated errors (the floor, sample by sample) and the outputs
+    they belong to, per output: lists of arrays, one per stretch (and, ``with_folds``, each
+    sample's fold).
+
+    One predictor per run (the speed law is expanded about the run's own median speed),
+    cross-validated over FOLDS contiguous blocks of the run's stretches laid end to end, so
+    the short stretches of a run cut where the car slowed count too."""
+    err = {o: [] for o in OUTS}
+    ref = {o: [] for o in OUTS}
+    folds = []
+    groups: dict = {}
     for st in stretches:
-        taps = max(5, int(memory_s / st.dt))
-        if len(st.steer) < 6 * taps:
-            continue
-        keep = (st.t - st.t[0]) >= max(keep_from_s, memory_s)
+        groups.setdefault(st.name.split("[")[0], []).append(st)
+    for items in groups.values():
+        e, r, f = _run_errors(items, memory_s, keep_from_s, ridge)
+        for o in OUTS:
+            err[o].extend(e[o])
+            ref[o].extend(r[o])
+        folds.extend(f)
+    return (err, ref, folds) if with_folds else (err, ref)
+
+
+def _run_errors(items, memory_s, keep_from_s, ridge):
+    taps = max(5, int(round(memory_s / items[0].dt)))
+    items = [st for st in items if len(st.steer) > taps + 10]
+    err = {o: [] for o in OUTS}
+    ref = {o: [] for o in OUTS}
+    folds = []
+    if not items or sum(len(st.steer) for st in items) < 8 * taps:
+        return err, ref, folds
+    speeds = [np.asarray(st.vx_series, float) for st in items if getattr(st, "vx_series", None) is not None]
+    v_ref = float(np.median(np.concatenate(speeds))) if speeds else 1.0
+    total = sum(len(st.steer) for st in items)
+    edges = np.linspace(0, total, FOLDS + 1)
+
+    def rows(st, start):
+        X = _design(st.steer, getattr(st, "vx_series", None), taps, v_ref)
+        Y = np.column_stack([st.ay, st.r])
         valid = getattr(st, "valid", None)
-        if valid is not None:
-            keep = keep & valid
-        for name, y in (("ay", st.ay), ("r", st.r)):
-            pred = _fir_cv(st.steer, y, taps, vx=getattr(st, "vx_series", None), valid=valid)
-            err[name].append((y - pred)[keep])
-            ref[name].append(y[keep])
-    return err, ref
+        use = np.ones(len(st.t), bool) if valid is None else np.asarray(valid, bool).copy()
+        keep = use & ((st.t - st.t[0]) >= max(keep_from_s, memory_s))
+        use[:taps] = False  # the FIR's history is not data yet
+        fold = np.minimum(np.searchsorted(edges, start + np.arange(len(st.t)), side="right") - 1, FOLDS - 1)
+        return X, Y, use, keep, fold
+
+    G = B = Gf = Bf = None
+    nf = np.zeros(FOLDS)
+    start = 0
+    for st in items:
+        X, Y, use, _, fold = rows(st, start)
+        start += len(st.steer)
+        if G is None:
+            p = X.shape[1]
+            G, B = np.zeros((p, p)), np.zeros((p, 2))
+            Gf, Bf = np.zeros((FOLDS, p, p)), np.zeros((FOLDS, p, 2))
+        G += X[use].T @ X[use]
+        B += X[use].T @ Y[use]
+        for k in range(FOLDS):
+            m = use & (fold == k)
+            if m.any():
+                Gf[k] += X[m].T @ X[m]
+                Bf[k] += X[m].T @ Y[m]
+                nf[k] += m.sum()
+    p = G.shape[0]
+    W, df_over_n = [], []
+    for k in range(FOLDS):
+        Gk, Bk = G - Gf[k], B - Bf[k]
+        R = Gk + ridge * np.trace(Gk) / p * np.eye(p)
+        W.append(np.linalg.solve(R, Bk))
+        # p: the effective number of parameters (the hat matrix's trace: speed columns that
+        # are zero at a constant speed, or nearly so, do not count)
+        df_over_n.append(float(np.trace(np.linalg.solve(R, Gk))) / max(nf.sum() - nf[k], 1.0))
+    raw, keeps, fold_of = [], [], []
+    start = 0
+    for st in items:
+        X, Y, _, keep, fold = rows(st, start)
+        start += len(st.steer)
+        E = np.empty_like(Y)
+        for k in range(FOLDS):
+            m = fold == k
+            E[m] = Y[m] - X[m] @ W[k]
+        raw.append((E, Y))
+        keeps.append(keep)
+        fold_of.append(fold)
+    # out of sample, a least-squares predictor's mean square error is sigma^2 (1 + p tau / n):
+    # tau the noise's integrated autocorrelation time (n / tau independent samples; the
+    # prefilter colours the noise at this rate)
+    tau = [tau_int(np.concatenate([E[k, j] for (E, _), k in zip(raw, keeps)]), max(2, taps // 2))
+           for j in range(2)]
+    for (E, Y), keep, fold in zip(raw, keeps, fold_of):
+        for k in range(FOLDS):
+            m = fold == k
+            E[m] /= np.sqrt(1.0 + df_over_n[k] * np.asarray(tau))
+        for j, name in enumerate(OUTS):
+            err[name].append(E[keep, j])
+            ref[name].append(Y[keep, j])
+        folds.append(fold[keep])
+    return err, ref, folds
+
+
+def _percent(e: np.ndarray, y: np.ndarray) -> float:
+    return float(100 * (1 - np.linalg.norm(e) / np.linalg.norm(y - y.mean())))
+
+
+def noise_floor_uncertainty(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5):
+    """(floor, its standard error) per output, in fit points."""
+    err, ref, folds = floor_errors(stretches, memory_s, keep_from_s, with_folds=True)
+    floor, se = {}, {}
+    for o in OUTS:
+        if not err[o]:
+            floor[o], se[o] = float("nan"), float("nan")
+            continue
+        e, y, f = np.concatenate(err[o]), np.concatenate(ref[o]), np.concatenate(folds)
+        floor[o] = _percent(e, y)
+        jk = np.array([_percent(e[f != k], y[f != k]) for k in range(FOLDS)])
+        se[o] = float(np.sqrt((FOLDS - 1) / FOLDS * np.sum((jk - jk.mean()) ** 2)))
+    return floor, se
 
 
 def noise_floor(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> dict:
-    err, ref = floor_errors(stretches, memory_s, keep_from_s)
-    out = {}
-    for k in err:
-        if not err[k]:
-            out[k] = float("nan")
-            continue
-        e = np.concatenate(err[k])
-        y = np.concatenate(ref[k])
-        out[k] = float(100 * (1 - np.linalg.norm(e) / np.linalg.norm(y - y.mean())))
-    return out
+    return noise_floor_uncertainty(stretches, memory_s, keep_from_s)[0]

@@ -7,21 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
-
-from stid.fit.solver import autocorrelation
+from stid.stats import tau_int, xcorr as _xcorr
 
 Z99 = 2.576
-
-
-def _xcorr(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
-    """Normalised cross-correlation r_ab(k) = E[a(t) b(t-k)] for k = -max_lag..max_lag."""
-    a = a - a.mean()
-    b = b - b.mean()
-    n = len(a)
-    full = signal.correlate(a, b, mode="full", method="fft") / (n * np.std(a) * np.std(b) + 1e-300)
-    mid = n - 1
-    return full[mid - max_lag: mid + max_lag + 1]
 
 
 @dataclass
@@ -45,16 +33,6 @@ class ResidualAnalysis:
     def peak_lag_s(self, output: str) -> float:
         c = self.cross[output]
         return float(self.lags_s[np.argmax(np.abs(c))])
-
-
-def tau_int(e: np.ndarray, max_lag: int) -> float:
-    """Integrated autocorrelation time 1 + 2 sum rho_k, summed until rho first drops below 0.05."""
-    if len(e) < 8 or not np.any(e - e.mean()):
-        return 1.0
-    ac = autocorrelation(e, max_lag)
-    below = np.flatnonzero(ac[1:] < 0.05)
-    k = int(below[0]) + 1 if len(below) else max_lag
-    return float(max(1.0, 1 + 2 * np.sum(ac[1:k])))
 
 
 def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:

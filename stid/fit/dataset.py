@@ -19,7 +19,12 @@ from stid.errors import InputError
 from stid.run import Run
 from stid.sensor_chain import describe
 
-TARGET_FS = 200.0
+TARGET_FS = 200.0  # the frequency-response methods' rate (their Welch settings were chosen at it)
+# The time-domain fit's rate, one for every command (fit, compare, diagnose, report give the
+# same numbers only on the same samples). The data are prefiltered at 20 Hz, so 50 Hz keeps
+# all of it; it costs a quarter of 200 Hz, and the noise floor's correction for its own
+# estimation error assumes the nearly white noise this rate leaves.
+FIT_FS = 100.0
 MIN_STRETCH_S = 3.0
 # Below this the single track is not the car's model (kinematic steering, slip angles
 # from noise); standing still and reversing are left out too.
@@ -103,7 +108,7 @@ class Stretches(list):
         self.notes = list(notes or [])
 
 
-def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: float = TARGET_FS,
+def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: float | None = None,
                       trim_s: float = 0.5, constant_speed: bool = False, method: str = "") -> Stretches:
     """Stretches of every run for the dynamic fits.
 
@@ -111,7 +116,10 @@ def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: 
     at least ``min_s`` (the time-domain fit follows the measured speed). With
     ``constant_speed`` only stretches whose speed stays within +-5% of their own: the
     frequency-response methods (named by ``method`` in messages) need one speed.
+    ``target_fs``: default FIT_FS, or TARGET_FS with ``constant_speed``.
     """
+    if target_fs is None:
+        target_fs = TARGET_FS if constant_speed else FIT_FS
     out = []
     reasons = []
     notes = []

@@ -27,10 +27,17 @@ METHODS = ("auto", "steady", "freq", "freq-study", "time", "two-step")
 
 
 def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynamic: str = "time",
-        intervals: str = "model-error"):
+        intervals: str = "model-error", stretches=None, init: dict | None = None, multistart: bool | None = None):
     """Fit ``model_name`` to the runs by ``method``. ``intervals``: ``"model-error"`` (the
     default: also a block jackknife, so intervals cover model error that varies through the
-    data) or ``"noise"`` (the sandwich alone; faster, for inner loops)."""
+    data) or ``"noise"`` (the sandwich alone; faster, for inner loops).
+
+    This is the one fitting path of every command: ``fit``, ``compare``, each step of
+    ``diagnose`` and ``report`` call it, so the same model on the same data gives the same
+    parameters and fit percent in all of them. ``stretches``: the runs' time-domain
+    stretches when the caller has built them already (diagnose builds them once for all its
+    fits); ``init`` and ``multistart`` only choose where the solver starts, not what it
+    minimises."""
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if model_name.split("+")[0].strip() in ("greybox", "greybox-study"):
@@ -42,7 +49,18 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
 
         return fit_greybox(runs, vehicle, model_name.strip())
     model = Model(model_name, vehicle)
-    result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
+    if stretches is not None and method not in ("time", "auto"):
+        raise ValueError("prebuilt stretches are the time-domain fit's")
+    if stretches is not None or init is not None or multistart is not None:
+        if method == "auto" and stretches is None:
+            method = _choose(runs)
+        if method in ("auto", "time"):
+            result = fit_time(model, stretches if stretches is not None else dataset.dynamic_stretches(runs),
+                              intervals=intervals, init=init, multistart=multistart)
+        else:
+            result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
+    else:
+        result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
     for w in sensor_chain.undeclared_warnings(runs, vehicle):
         result.warn(w)
     return result

@@ -15,6 +15,7 @@ import numpy as np
 from scipy import optimize
 
 from stid.errors import InputError
+from stid.stats import autocorr_length
 
 
 @dataclass
@@ -113,25 +114,6 @@ def covariance_white(J: np.ndarray, r: np.ndarray, n_params: int, scale_by_chi2:
     dof = max(len(r) - n_params, 1)
     chi2 = float(r @ r) / dof
     return cov * max(chi2, 1.0) if scale_by_chi2 else cov
-
-
-def autocorrelation(e: np.ndarray, max_lag: int) -> np.ndarray:
-    """Normalised autocorrelation of e at lags 0..max_lag (FFT)."""
-    e = e - e.mean()
-    n = len(e)
-    if n < 4 or not np.any(e):
-        out = np.zeros(max_lag + 1)
-        out[0] = 1.0
-        return out
-    f = np.fft.rfft(e, 2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[: max_lag + 1]
-    return ac / ac[0]
-
-
-def autocorr_length(e: np.ndarray, max_lag: int) -> int:
-    """Lag at which the residual autocorrelation first falls below 0.05."""
-    below = np.flatnonzero(np.abs(autocorrelation(e, max_lag)) < 0.05)
-    return int(below[0]) if len(below) else max_lag
 
 
 def covariance_sandwich(J_blocks: list, r_blocks: list) -> np.ndarray:

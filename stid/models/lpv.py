@@ -100,13 +100,21 @@ def _batched_foh(A, B, dt):
     per matrix), with expm for any system that is not safely diagonalisable."""
     L, n, m = B.shape
     lam, V = np.linalg.eig(A)
-    good = (np.linalg.cond(V) < 1e8) & np.all(np.abs(lam) * dt > 1e-6, axis=1)
+    # condition number in the 1-norm from the inverse needed anyway (an SVD per matrix
+    # cost more than the rest of the discretisation)
+    with np.errstate(all="ignore"):
+        try:
+            Vinv = np.linalg.inv(V)
+            cond = np.abs(V).sum(axis=1).max(axis=1) * np.abs(Vinv).sum(axis=1).max(axis=1)
+        except np.linalg.LinAlgError:
+            Vinv, cond = None, np.full(L, np.inf)
+    good = np.isfinite(cond) & (cond < 1e8) & np.all(np.abs(lam) * dt > 1e-6, axis=1)
     F = np.empty((L, n, n))
     G1 = np.empty((L, n, m))
     G2 = np.empty((L, n, m))
     if good.any():
         lg, Vg = lam[good], V[good]
-        Vi = np.linalg.inv(Vg)
+        Vi = Vinv[good]
         Bt = Vi @ B[good]
         z = lg * dt
         ez = np.exp(z)
@@ -123,13 +131,14 @@ def _batched_foh(A, B, dt):
     return F, G1 - G2, G2
 
 
-def _speed_law(mats: list, speeds) -> tuple | None:
+def _speed_law(mats: list, speeds, V_inv=None) -> tuple | None:
     """Coefficients (c0, c1, c2) with X(v) = c0 + c1 v + c2 / v from builds at the first
     three speeds, or None when the fourth build does not follow that law."""
-    v = np.asarray(speeds[:3], float)
-    V = np.column_stack([np.ones(3), v, 1.0 / v])
+    if V_inv is None:
+        v = np.asarray(speeds[:3], float)
+        V_inv = np.linalg.inv(np.column_stack([np.ones(3), v, 1.0 / v]))
     X = np.stack([m.ravel() for m in mats[:3]])
-    coef = np.linalg.solve(V, X)
+    coef = V_inv @ X
     v4 = float(speeds[3])
     pred = coef[0] + coef[1] * v4 + coef[2] / v4
     scale = max(float(np.max(np.abs(X))), 1e-300)
@@ -169,8 +178,10 @@ class LpvSimulator:
             probe = [vmin, vmin * 1.3, vmin * 0.8, vmin * 1.11]
         built = [parts(v) for v in probe]
         stacks = []
+        pv = np.asarray(probe[:3], float)
+        V_inv = np.linalg.inv(np.column_stack([np.ones(3), pv, 1.0 / pv]))
         for j in range(5):
-            coef = _speed_law([b[j] for b in built], probe)
+            coef = _speed_law([b[j] for b in built], probe, V_inv)
             if coef is None:
                 stacks = None
                 break

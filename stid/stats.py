@@ -1,0 +1,49 @@
+"""Statistics shared by the fitting code and the analysis of its results: correlation
+of time series and how long it lasts. Both sides import it from here, so the analysis
+does not reach into the fitting code's internals."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def autocorrelation(e: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised autocorrelation of e at lags 0..max_lag (FFT)."""
+    e = e - e.mean()
+    n = len(e)
+    if n < 4 or not np.any(e):
+        out = np.zeros(max_lag + 1)
+        out[0] = 1.0
+        return out
+    f = np.fft.rfft(e, 2 * n)
+    ac = np.fft.irfft(f * np.conj(f))[: max_lag + 1]
+    return ac / ac[0]
+
+
+def autocorr_length(e: np.ndarray, max_lag: int) -> int:
+    """Lag at which the autocorrelation first falls below 0.05."""
+    below = np.flatnonzero(np.abs(autocorrelation(e, max_lag)) < 0.05)
+    return int(below[0]) if len(below) else max_lag
+
+
+def xcorr(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation r_ab(k) = E[a(t) b(t-k)] for k = -max_lag..max_lag (FFT;
+    numpy's, as scipy.signal costs most of a second to import)."""
+    a = a - a.mean()
+    b = b - b.mean()
+    n = len(a)
+    m = 1 << int(np.ceil(np.log2(2 * n - 1)))
+    full = np.fft.irfft(np.fft.rfft(a, m) * np.conj(np.fft.rfft(b, m)), m)
+    lags = np.arange(-max_lag, max_lag + 1)
+    return full[lags % m] / (n * np.std(a) * np.std(b) + 1e-300)
+
+
+def tau_int(e: np.ndarray, max_lag: int) -> float:
+    """Integrated autocorrelation time 1 + 2 sum rho_k [samples], summed until rho first
+    drops below 0.05."""
+    if len(e) < 8 or not np.any(e - e.mean()):
+        return 1.0
+    ac = autocorrelation(e, max_lag)
+    below = np.flatnonzero(ac[1:] < 0.05)
+    k = int(below[0]) + 1 if len(below) else max_lag
+    return float(max(1.0, 1 + 2 * np.sum(ac[1:k])))
