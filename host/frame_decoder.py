@@ -150,7 +150,7 @@ def decode_compact_hello(body: bytes, version: int = p.VERSION) -> dict:
     kind = code(p.HELLO_C_LINKS, f["link_kind"])
     mp = (f["mp0"], f["mp1"], f["mp2"])
     uid = body[p.HELLO_C_FIXED:]
-    return {
+    doc = {
         "proto": version, "fw": "%d.%d.%d" % (f["fw0"], f["fw1"], f["fw2"]),
         "board": code(p.HELLO_C_BOARDS, f["board"]), "boot_id": "%08x" % f["boot_id"],
         "rate_hz": f["rate_hz"], "batch": f["batch"], "mod": p.MOD,
@@ -169,6 +169,10 @@ def decode_compact_hello(body: bytes, version: int = p.VERSION) -> dict:
         "sim": bool(f["flags"] & p.HELLO_C_FLAG_SIM),
         "hello": "compact",
     }
+    if f["flags"] & (p.HELLO_C_FLAG_ADC_DMA | p.HELLO_C_FLAG_SERVO_PIO):  # absent: cpu and irq
+        doc["capture"] = {"adc": "dma" if f["flags"] & p.HELLO_C_FLAG_ADC_DMA else "cpu",
+                          "servo": "pio" if f["flags"] & p.HELLO_C_FLAG_SERVO_PIO else "irq"}
+    return doc
 
 
 @dataclass

@@ -25,7 +25,7 @@ from pulses import HallCounter, ServoPulse
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = (0, 3, 0)
+FW_VERSION = (0, 3, 1)
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
 _COMPACT_HELLO_PERIOD_MS = const(1000)
@@ -73,8 +73,10 @@ def compact_hello(doc, timer_hard, sim, mp, uid):
     pos = bytes([_WHEEL_CODES[w["wheel"]] for w in wl] + [0xFF] * (4 - len(wl)))
     link = doc["link"]
     clip = doc["adc_clip_v"]
+    cap = doc.get("capture") or {"adc": "cpu", "servo": "irq"}
     body = struct.pack(codec.HELLO_C_FMT, int(doc["boot_id"], 16), _BOARD_CODES.get(doc["board"], 0),
-                       (1 if timer_hard else 0) | (2 if sim else 0), doc["rate_hz"], doc["batch"],
+                       (1 if timer_hard else 0) | (2 if sim else 0) | (4 if cap["adc"] == "dma" else 0)
+                       | (8 if cap["servo"] == "pio" else 0), doc["rate_hz"], doc["batch"],
                        FW_VERSION[0], FW_VERSION[1], FW_VERSION[2], mp[0], mp[1], mp[2],
                        _RESET_CODES.get(doc["reset_cause"], 0), doc["adc"]["bits"],
                        0 if doc["adc"]["unit"] == "count" else 1, int(doc["adc"]["vref"] * 1000 + 0.5),
@@ -92,6 +94,34 @@ def _compact_json(doc):
         return json.dumps(doc, separators=(",", ":"))
     except TypeError:
         return json.dumps(doc)
+
+
+def _open_scan(profile, readers, period_us):
+    """(scan, readers, HELLO capture.adc): the RP2040's hardware scan where it runs,
+    else the readers that convert on each call ("cpu")."""
+    if not profile.get("adc_scan"):
+        return None, readers, "cpu"
+    import adc_scan
+    if adc_scan.unavailable():
+        return None, readers, "cpu"
+    pins = profile["pins"]
+    names = [ch for ch in boards.CHANNELS if pins[ch] is not None]
+    scan = adc_scan.AdcScan([pins[ch] - 26 for ch in names], period_us)
+    by_name = dict(zip(names, scan.readers()))
+    out = [by_name.get(ch, r) for ch, r in zip(boards.CHANNELS, readers)]
+    return scan, out, "dma"
+
+
+def _open_servo(profile):
+    """(steering pulse input, HELLO capture.servo): a PIO state machine on the RP2040,
+    else pin interrupts ("irq")."""
+    if profile.get("servo_pio"):
+        try:
+            from servo_pio import ServoPulsePio
+            return ServoPulsePio(profile["steer_pin"], _STEER_TIMEOUT_US), "pio"
+        except (ImportError, AttributeError):  # no rp2 module / PIO: the pin IRQ below
+            pass
+    return ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US), "irq"
 
 
 class App:
@@ -119,11 +149,14 @@ class App:
         self.profile = profile
         self.rate_hz = rate_hz
         self.batch = batch
-        self.steer = ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US)
+        period_us = 1000000 // rate_hz
+        scan, readers, adc_mode = _open_scan(profile, readers, period_us)
+        self.scan = scan
+        self.steer, servo_mode = _open_servo(profile)
         self.wheels = [HallCounter(pin, profile["hall_debounce_us"]) for _, pin in wheel_list]
         self.wheel = self.wheels[0]
         self.ring = SampleRing(ring_size, self.record_size)
-        self.sampler = Sampler(self.ring, readers, self.steer, self.wheels, 1000000 // rate_hz)
+        self.sampler = Sampler(self.ring, readers, self.steer, self.wheels, period_us, scan)
         self.enc = codec.FrameEncoder()
         link = boards.open_link(profile)
         if out is None:
@@ -143,6 +176,8 @@ class App:
             "uid": boards.unique_id_hex(), "micropython": "%d.%d.%d" % mp,
             "timer": None, "reset_cause": boards.reset_cause(), "link": link,
         }
+        if adc_mode != "cpu" or servo_mode != "irq":  # absent: both by the CPU, as before 0.3.1
+            self.hello["capture"] = {"adc": adc_mode, "servo": servo_mode}
         if extra_hello:
             self.hello.update(extra_hello)
         self.hello_doc = b""  # built at start(), once the timer mode is known
@@ -294,6 +329,10 @@ class App:
         if self._timer is not None:
             self._timer.deinit()
             self._timer = None
+        if self.scan is not None:
+            self.scan.stop()
+        if hasattr(self.steer, "stop"):
+            self.steer.stop()
         self.pump(flush=True)
         self.send_status()
 

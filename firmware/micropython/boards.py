@@ -46,6 +46,8 @@ PROFILES = {
         "link": {"kind": "usb", "baud": None},
         "hall_debounce_us": 200,
         "safe_pin": 22,
+        "adc_scan": True,  # RP2040: ADC round robin into a DMA ring (adc_scan.py)
+        "servo_pio": True,  # RP2040: servo pulses timed by a PIO state machine (servo_pio.py)
     },
     "esp32": {
         "adc": {"bits": 12, "vref": 3.3, "unit": "mV"},
@@ -61,6 +63,10 @@ PROFILES = {
         "link": {"kind": "uart", "baud": 921600, "uart": 0},
         "hall_debounce_us": 200,
         "safe_pin": 0,  # the DevKit's BOOT button, read after reset
+        # no hardware scan: the ESP32's ADC DMA (I2S/"continuous" mode) is not exposed by
+        # MicroPython; servo pulses by pin IRQ: MicroPython's esp32.RMT is transmit-only
+        "adc_scan": False,
+        "servo_pio": False,
     },
 }
 

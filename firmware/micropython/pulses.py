@@ -28,6 +28,8 @@ class ServoPulse:
         self.t_fall = 0
         self.t_read = 0  # falling edge of the pulse the last read() returned
         self._stale = 0  # t_fall of a pulse found older than the timeout: 0 until a new edge
+        self.w_prev = 0  # the pulse before the latest (read(before=...) may need it)
+        self.f_prev = 0
         self._t_rise = 0
         self._high = False
         _irq(self.pin, self._edge, Pin.IRQ_RISING | Pin.IRQ_FALLING)
@@ -41,12 +43,16 @@ class ServoPulse:
             self._high = False
             w = time.ticks_diff(t, self._t_rise)
             if _MIN_PULSE_US <= w <= _MAX_PULSE_US:
+                self.w_prev = self.width
+                self.f_prev = self.t_fall
                 self.width = w
                 self.t_fall = t
 
-    def read(self, now):
+    def read(self, now, before=-1):
         # Width of the latest valid pulse; its falling edge is left in t_read. 0 when no
         # valid pulse arrived within the timeout (receiver off, servo unplugged).
+        # before >= 0: the latest pulse that ended before those ticks (the sample's
+        # instant, when that is earlier than the interrupt: adc_scan).
         # Width and edge time must belong to the same pulse even where the pin IRQ can
         # run between two reads (a hard pin IRQ during the ESP32's scheduled sampler):
         # re-read if the edge time changed meanwhile (the IRQ writes width first).
@@ -55,6 +61,9 @@ class ServoPulse:
         while self.t_fall != tf:
             tf = self.t_fall
             w = self.width
+        if before >= 0 and w and time.ticks_diff(tf, before) >= 0:
+            tf = self.f_prev
+            w = self.w_prev
         self.t_read = tf
         # ticks_diff is only meaningful within 2^29 us (~9 min): a pulse judged by its
         # age alone would come back as valid 9-17 min after the receiver was lost. The
@@ -77,6 +86,9 @@ class HallCounter:
         self.pin = Pin(pin_no, Pin.IN, Pin.PULL_UP)
         self.count = 0
         self.t_last = 0
+        self.t_prev = 0  # the edge before t_last
+        self.s_count = 0  # count and edge time as of a sample's instant (snap)
+        self.s_t = 0
         self.debounce_us = debounce_us
         self.bounces = 0
         _irq(self.pin, self._edge, Pin.IRQ_FALLING)
@@ -86,5 +98,18 @@ class HallCounter:
         if self.count and time.ticks_diff(t, self.t_last) < self.debounce_us:
             self.bounces += 1
             return
+        self.t_prev = self.t_last
         self.t_last = t
         self.count = (self.count + 1) & 0xFFFF
+
+    def snap(self, t, as_of_t):
+        # count and latest edge time into s_count, s_t; with as_of_t, as of ticks t (the
+        # sample's instant, earlier than the interrupt with adc_scan): an edge at or
+        # after t is not counted yet
+        c = self.count
+        tl = self.t_last
+        if as_of_t and c and time.ticks_diff(tl, t) >= 0:
+            c = (c - 1) & 0xFFFF
+            tl = self.t_prev
+        self.s_count = c
+        self.s_t = tl

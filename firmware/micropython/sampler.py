@@ -12,6 +12,11 @@
 # queued. Lost ticks advance the index and are counted in `missed`: the host sees
 # a gap, never a stretched clock. `late_max_us` is how far behind its tick's
 # nominal instant (start + index * period) a sample was taken.
+#
+# With a hardware scan (adc_scan.py, RP2040) the analog values were converted by
+# the ADC at an instant fixed by its own clock: the interrupt only latches that
+# period's scan, and the record's time is the scan's, not the interrupt's. The
+# lateness is then the scan's (0 unless a very late soft call found it overwritten).
 import struct
 import time
 from micropython import const
@@ -23,8 +28,10 @@ _FREE_MARGIN_US = const(200)  # a tick this close before t_free may still be que
 
 
 class Sampler:
-    def __init__(self, ring, readers, steer, wheels, period_us):
+    def __init__(self, ring, readers, steer, wheels, period_us, scan=None):
         # wheels: one or four HallCounter objects, in record order
+        # scan: an AdcScan whose readers are in `readers` (None: readers convert themselves)
+        self._scan = scan
         self.ring = ring
         self._ax, self._ay, self._az, self._yaw, self._vbat = readers
         self._steer = steer
@@ -46,9 +53,12 @@ class Sampler:
     def arm(self, t_start):
         # The timer was started at t_start: its first tick is due one period later.
         self._t_next = (t_start + self.period_us) & _MASK30
+        if self._scan is not None:
+            self._scan.start(self._t_next, time.ticks_us)
 
     def isr(self, _timer):
         t = time.ticks_us() & _MASK30
+        t_isr = t
         if self._t_next < 0:
             self._t_next = t
         old = time.ticks_diff(self.t_free, self._t_next) - _FREE_MARGIN_US
@@ -57,10 +67,15 @@ class Sampler:
             self.index = (self.index + k) & _MASK30
             self.missed += k
             self._t_next = (self._t_next + k * self.period_us) & _MASK30
+            if self._scan is not None:
+                self._scan.skip(k)
         late = time.ticks_diff(t, self._t_next)
         if late < 0:  # the timer runs a little fast against our grid: follow it
             self._t_next = t
             late = 0
+        if self._scan is not None:
+            t = self._scan.latch(t)  # the scan's own instant: no interrupt latency in it
+            late = self._scan.late_us
         if late > self.late_max_us:
             self.late_max_us = late
         ring = self.ring
@@ -68,21 +83,28 @@ class Sampler:
         if off >= 0:
             st = self._steer
             w = self._w0
+            # with a scan, t is before the interrupt: pulses and edges as of t, like the
+            # analog values (an edge at t itself comes after, as a timer fired first)
+            scan = self._scan is not None
+            w.snap(t, scan)
             # steer_us and steer_t_us: width and falling-edge time of the same pulse
             # (read() takes them together and leaves the edge time in t_read)
             struct.pack_into(SAMPLE_FMT, ring.buf, off, t, self._ax(), self._ay(), self._az(), self._yaw(),
-                             st.read(t), w.count, w.t_last, self._vbat(), st.t_read)
+                             st.read(t, t if scan else -1), w.s_count, w.s_t, self._vbat(), st.t_read)
             if self._four:
                 a = self._w1
                 b = self._w2
                 c = self._w3
-                struct.pack_into(WHEELS3_FMT, ring.buf, off + SAMPLE_SIZE, a.count, a.t_last,
-                                 b.count, b.t_last, c.count, c.t_last)
+                a.snap(t, scan)
+                b.snap(t, scan)
+                c.snap(t, scan)
+                struct.pack_into(WHEELS3_FMT, ring.buf, off + SAMPLE_SIZE, a.s_count, a.s_t,
+                                 b.s_count, b.s_t, c.s_count, c.s_t)
             ring.commit()
         self.index = (self.index + 1) & _MASK30
         self._t_next = (self._t_next + self.period_us) & _MASK30
         self.runs = (self.runs + 1) & _MASK30
-        d = time.ticks_diff(time.ticks_us(), t)
+        d = time.ticks_diff(time.ticks_us(), t_isr)
         self.isr_last_us = d
         if d > self.isr_max_us:
             self.isr_max_us = d

@@ -74,6 +74,24 @@ class Timer:
         _b.timer_cb = None
 
 
+class _Mem32:
+    # machine.mem32: only the RP2040 ADC registers exist here (rp2040_hw.Adc)
+    def _adc(self, addr):
+        hw = _b.rp2040
+        if hw is None or not 0x4004C000 <= addr < 0x4004C024:
+            raise OSError("simulated board: no register at 0x%x" % addr)
+        return hw.adc
+
+    def __getitem__(self, addr):
+        return self._adc(addr).read(addr)
+
+    def __setitem__(self, addr, v):
+        self._adc(addr).write(addr, v)
+
+
+mem32 = _Mem32()
+
+
 class UART:
     # Only what the firmware uses: the console UART's baud rate (ESP32 UART 0).
     def __init__(self, id, baudrate=None, **kw):

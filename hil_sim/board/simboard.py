@@ -24,6 +24,10 @@
 #   alarm_callback); a machine.WDT not fed within its timeout resets the board
 #   (WatchdogReset; run_firmware.py boots the firmware again).
 #
+# - On a Pico, the RP2040 peripherals the firmware programs directly (ADC registers
+#   through machine.mem32, rp2.DMA, a PIO state machine) are modelled in
+#   rp2040_hw.py; the PIO sees the servo edges at their true times, unlike IRQs.
+#
 # Nothing here may allocate while firing events: the firmware's allocation test
 # runs its sampler interrupt under micropython.heap_lock() through this code.
 import json
@@ -32,6 +36,8 @@ import struct
 from array import array
 
 import utime
+
+import rp2040_hw
 
 _MASK30 = 0x3FFFFFFF
 _FAR = 1 << 62
@@ -128,6 +134,7 @@ class Board:
         self.resetting = False
         self.reset_cause = RESET_CAUSES["power_on"]
         # machine.unique_id(): the RP2040's flash id is 8 bytes, the ESP32's MAC 6
+        self.rp2040 = rp2040_hw.Rp2040(self) if s.board == "pico" else None
         self.uid = bytes(opts.get("uid", [0xE6, 0x60, 0x38, 0xB7, 0x13, 0x3A, 0x2B, 0x2F][:8 if s.board == "pico" else 6]))
 
     def set_baud(self, baud):
@@ -149,6 +156,7 @@ class Board:
             else:
                 self.sched_lost += 1
             return
+        self._hw_sync()
         try:
             self.timer_cb(self.timer_obj)
         except Exception as e:  # rp2: "Uncaught exception; don't run the callback again"
@@ -163,11 +171,17 @@ class Board:
         # the time it actually runs (late); an exception is printed and forgotten.
         while self.sched_n > 0 and self.timer_cb is not None:
             self.sched_n -= 1
+            self._hw_sync()
             try:
                 self.timer_cb(self.timer_obj)
             except Exception as e:
                 import sys
                 sys.print_exception(e)
+
+    def _hw_sync(self):
+        # peripherals that run on their own clock catch up before the CPU looks
+        if self.rp2040 is not None:
+            self.rp2040.adc.sync()
 
     def _check_wdt(self):
         if self.wdt_timeout and self.now - self.wdt_fed > self.wdt_timeout:
@@ -192,6 +206,8 @@ class Board:
         self.sched_n = 0
         self.wdt_timeout = 0
         self.irq.clear()
+        if self.rp2040 is not None:  # a reset stops the ADC, DMA and PIO
+            self.rp2040 = rp2040_hw.Rp2040(self)
 
     def _next_steer(self):
         if self.steer_k >= len(self.stim.steer):
@@ -230,6 +246,8 @@ class Board:
             self._pace(t)
             self.now = t
             self._check_wdt()
+            if t != tt and self.rp2040 is not None and t == ts:
+                self._pio_edge(t)  # the state machine samples the pin itself: no IRQ delay
             if t == tt:
                 self.timer_due = tt + self.timer_period
                 self._timer_fires()
@@ -255,6 +273,11 @@ class Board:
             self._check_wdt()
         if self.now >= self.stim.duration_us:
             self.finished = True
+
+    def _pio_edge(self, t):
+        sm = self.rp2040.sm.get(self.steer_pin)
+        if sm is not None:
+            sm.edge(t, 0 if self.steer_high else 1)
 
     def _edge(self, pin_no, level):
         self.pin_level[pin_no] = level
@@ -299,6 +322,9 @@ class Board:
             raise OSError(5)
 
     def read_u16(self, pin_no):
+        if self.rp2040 is not None and self.rp2040.adc.running:
+            raise rp2040_hw.HwError("ADC.read_u16 while the ADC free-runs (START_MANY): it would select "
+                                    "another input and break the round robin")
         self._adc_fault()
         v = self.volts_01mv(pin_no)
         c = (v * 4095 + 16500) // 33000  # RP2040: 12 bits over 0..3.3 V
@@ -374,4 +400,11 @@ def board():
         if not path:
             raise OSError("STID_SIM_STIMULUS is not set: the simulated board needs a stimulus file")
         BOARD = Board(path, realtime=os.getenv("STID_SIM_REALTIME") == "1")
+        # Free the import-time garbage now. MicroPython's allocator is first-fit from the
+        # lowest free block: with only small holes below the stimulus arrays, every call
+        # that puts its frame on the heap scanned the allocation table past them (time
+        # per call grew with the stimulus: a 10-minute run ran ~5x slower until the holes
+        # happened to fill). Collected, the space below them serves those allocations.
+        import gc
+        gc.collect()
     return BOARD

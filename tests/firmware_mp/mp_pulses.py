@@ -53,4 +53,19 @@ for k in range(5):
 check(hc.count == 5, "five edges counted, bounces ignored (%d)" % hc.count)
 check(hc.bounces == 5, "five bounces seen")
 check(hc.t_last == (9000000 + 40000) & 0x3FFFFFFF, "edge time is the real edge's")
+
+# -- as of a sample instant before the interrupt (adc_scan): later edges not yet ----------
+t_s = (9000000 + 40000 - 10) & 0x3FFFFFFF  # 10 us before the last edge
+hc.snap(t_s, True)
+check(hc.s_count == 4 and hc.s_t == (9000000 + 30000) & 0x3FFFFFFF, "hall as of an earlier instant")
+hc.snap(t_s, False)
+check(hc.s_count == 5, "hall as of the interrupt")
+PIN = 40
+edge(sp, end + 30000, 1)
+edge(sp, end + 30000 + 1700, 0)
+b.now = end + 30000 + 1720
+t_s = (end + 30000 + 1690) & 0x3FFFFFFF  # before the fall of the 1700 us pulse
+check(sp.read(time.ticks_us(), t_s) == 1200 and sp.t_read == (end + 10 + 1200) & 0x3FFFFFFF,
+      "servo as of an earlier instant: the pulse before")
+check(sp.read(time.ticks_us()) == 1700, "servo as of the interrupt: the latest")
 done()
