@@ -54,8 +54,10 @@ def build(plan: Plan, dt: float, rng: np.random.Generator) -> Manoeuvre:
     t_go = plan.still
     t_steer = plan.still + plan.run_up
     v_ref = plan.speed * _ramp(t, t_go, t_go + 0.6 * plan.run_up)
-    delta = np.zeros_like(t)
-    tm = t - t_steer
+    # whole-run arrays are made only where used: a 10-minute run's are 5 MB each, and
+    # random_steer's filter needs several more at once (stid-sim --fast's memory peak)
+    delta = None
+    tm = t - t_steer if plan.name in ("chirp", "steady_circle", "step_steer") else None
     on = t >= t_steer
     path = None
     if plan.name == "standstill":
@@ -66,8 +68,8 @@ def build(plan: Plan, dt: float, rng: np.random.Generator) -> Manoeuvre:
         sos = signal.butter(6, plan.bandwidth, fs=fs, output="sos")
         w = signal.sosfiltfilt(sos, rng.standard_normal(len(t)))
         w *= plan.steer_amp / np.std(w[on])
-        fade = _ramp(t, t_steer, t_steer + 0.5)
-        delta = w * fade
+        w *= _ramp(t, t_steer, t_steer + 0.5)  # fade in
+        delta = w
     elif plan.name == "chirp":
         f0 = 0.2
         delta = np.where(on, plan.steer_amp * signal.chirp(tm, f0, plan.duration, plan.bandwidth,
@@ -83,6 +85,8 @@ def build(plan: Plan, dt: float, rng: np.random.Generator) -> Manoeuvre:
         delta = np.where(on & (np.mod(tm, period) < period / 2), plan.steer_amp * np.where(k % 2 == 0, 1, -1), 0.0)
     elif plan.name == "double_lane_change":
         path = _lane_change_path(plan)
+    if delta is None:
+        delta = np.zeros_like(t)
     if plan.speed_profile not in SPEED_PROFILES:
         raise ValueError(f"unknown speed profile {plan.speed_profile!r}; choose one of {', '.join(SPEED_PROFILES)}")
     if plan.speed_profile == "track" and plan.name not in ("standstill", "steady_circle"):
@@ -102,10 +106,14 @@ def _track_speed(t, t_steer, plan: Plan, rng: np.random.Generator) -> np.ndarray
         side = 1 if len(targets) % 2 else -1
         targets.append(plan.speed * (1 + side * plan.speed_swing * rng.uniform(0.5, 1.0)))
     # hold each target, with a smooth (raised-cosine) change over the first 1.5 s of its hold
+    # each hold's stretch on its own: whole-run temporaries per target cost time and memory
     v = np.full(len(t), plan.speed)
+    edges = np.searchsorted(t, times, side="left")  # first instant at or after each change
     for k in range(1, len(times)):
-        ramp = 0.5 * (1 - np.cos(np.pi * np.clip((t - times[k]) / 1.5, 0, 1)))
-        v = np.where(t >= times[k], targets[k - 1] + (targets[k] - targets[k - 1]) * ramp, v)
+        stop = edges[k + 1] if k + 1 < len(times) else len(t)
+        tk = t[edges[k]:stop]
+        ramp = 0.5 * (1 - np.cos(np.pi * np.clip((tk - times[k]) / 1.5, 0, 1)))
+        v[edges[k]:stop] = targets[k - 1] + (targets[k] - targets[k - 1]) * ramp
     return v
 
 

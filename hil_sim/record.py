@@ -15,7 +15,7 @@ import numpy as np
 from cobs import cobs
 
 from hil_sim.firmware_runner import run_firmware, start_firmware
-from hil_sim.run import SimConfig, SimRun, simulate_run, write_truth
+from hil_sim.run import SimConfig, SimRun, simulate_run, write_stimulus, write_truth
 from host import protocol as p
 from host import units
 from host.frame_decoder import FrameDecoder
@@ -44,15 +44,20 @@ def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: 
 
     The firmware's bytes are recorded as they come out of MicroPython (streamed, on the
     other core), not collected first: recording overlaps the firmware's run and the
-    stream is never held whole (except for the CSV, which needs it)."""
-    run = simulate_run(cfg)
-    if truth_path:
-        write_truth(run, truth_path)
+    stream is never held whole (except for the CSV, which needs it). Nor is the simulation:
+    the stimulus is written block by block (``write_stimulus``), unless the CSV needs the
+    truth itself (``beta_sensor``)."""
     keep = bytearray() if csv_path else None
     active = faults is not None and faults.active
     with tempfile.TemporaryDirectory(prefix="stid-sim-") as tmp:
         stim = Path(tmp) / "stimulus.bin"
-        run.stimulus.write(stim)
+        if csv_path and cfg.beta_sensor is not None:
+            run = simulate_run(cfg)
+            run.stimulus.write(stim)
+        else:
+            run = SimRun(cfg, traj=None, stimulus=write_stimulus(cfg, stim), manoeuvre=None)
+        if truth_path:
+            write_truth(run, truth_path)
         c = run.cfg
         proc = start_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size)
         err = bytearray()

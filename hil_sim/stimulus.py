@@ -12,6 +12,7 @@ hall edge.
 from __future__ import annotations
 
 import json
+import shutil
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,10 +39,18 @@ class Stimulus:
     wheel_ppr: int = 1  # hall pulses per wheel revolution (declared in HELLO)
     start_ticks: int = 0  # virtual ticks_us at t = 0 (set near 2^30 to test the wrap)
     stalls: list = field(default_factory=list)  # [(at_us, for_us)]: host stops reading
+    # a run generated block by block holds no voltages: its rows are in a file (VoltRows)
+    volt_rows: "VoltRows | None" = None
 
     @property
     def n_rows(self) -> int:
+        if self.volt_rows is not None:
+            return self.volt_rows.n_rows
         return len(next(iter(self.volts.values())))
+
+    @property
+    def pins(self) -> list:
+        return list(self.volt_rows.pins) if self.volt_rows is not None else sorted(self.volts)
 
     @property
     def duration_us(self) -> int:
@@ -72,9 +81,9 @@ class Stimulus:
         return t[order], pins[order]
 
     def write(self, path: Path) -> None:
-        pins = sorted(self.volts)
-        grid = np.stack([self.volts[p] for p in pins], axis=1)
-        counts = np.clip(np.round(grid / VOLT_UNIT), 0, 65535).astype("<u2")
+        pins = self.pins
+        counts = None if self.volt_rows is not None else volt_counts(self.volts, pins)
+        n_rows = self.n_rows
         hall_t, hall_p = self.hall_events()
         rise = self.rise_us()
         if len(rise) != len(self.steer_us):
@@ -82,7 +91,7 @@ class Stimulus:
         if len(rise) > 1 and np.any(np.diff(rise) <= np.asarray(self.steer_us)[:-1]):
             raise ValueError("servo pulses overlap")
         header = {
-            "board": self.board, "fs_sig": self.fs_sig, "n_rows": int(grid.shape[0]),
+            "board": self.board, "fs_sig": self.fs_sig, "n_rows": int(n_rows),
             "cols": {str(p): i for i, p in enumerate(pins)},
             "n_steer": int(len(self.steer_us)), "steer_pin": self.steer_pin,
             "n_hall": int(len(hall_t)), "hall_pins": sorted(set(int(x) for x in hall_p)) or [self.hall_pin],
@@ -94,7 +103,10 @@ class Stimulus:
         hb = json.dumps(header).encode()
         with open(path, "wb") as f:
             f.write(MAGIC + struct.pack("<I", len(hb)) + hb)
-            f.write(counts.tobytes())
+            if counts is None:
+                self.volt_rows.copy_to(f)
+            else:
+                f.write(counts.tobytes())
             f.write(np.asarray(self.steer_us, dtype="<u2").tobytes())
             f.write(rise.astype("<u4").tobytes())
             f.write(hall_t.astype("<u4").tobytes())
@@ -103,3 +115,36 @@ class Stimulus:
     def volts_counts(self, pin: int) -> np.ndarray:
         """The 0.1 mV values the board reads for ``pin`` (as written to the file)."""
         return np.clip(np.round(self.volts[pin] / VOLT_UNIT), 0, 65535).astype(np.int64)
+
+
+def volt_counts(volts: dict, pins) -> np.ndarray:
+    """The rows of the file's voltage block: one column per pin, in 0.1 mV counts."""
+    grid = np.stack([volts[p] for p in pins], axis=1)
+    return np.clip(np.round(grid / VOLT_UNIT), 0, 65535).astype("<u2")
+
+
+class VoltRows:
+    """The voltage block of a stimulus written as it is computed, block by block, into a
+    file of its own: a long run never holds its voltage grid (5 kHz x pins) in memory.
+    ``Stimulus.write`` copies it into place behind the header, which needs the run's
+    edge counts and so can only be written at the end."""
+
+    def __init__(self, path: Path, pins):
+        self.path = Path(path)
+        self.pins = tuple(sorted(pins))
+        self.n_rows = 0
+        self._f = open(self.path, "wb")
+
+    def add(self, volts: dict) -> None:
+        counts = volt_counts(volts, self.pins)
+        self._f.write(counts.tobytes())
+        self.n_rows += counts.shape[0]
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+    def copy_to(self, f) -> None:
+        self.close()
+        with open(self.path, "rb") as src:
+            shutil.copyfileobj(src, f, 1 << 20)

@@ -137,6 +137,7 @@ class Trajectory:
     rhs: object = None  # the right-hand side, for dense output
     steer_rise_us: np.ndarray | None = None  # rising edge of each pulse [us since t = 0]
     switches: dict | None = None  # commands taken inside a step: step, t, state, old, new
+    dt_step: float | None = None  # the integration step (a window of rows keeps the whole run's t[1] - t[0])
 
     def dense(self, tg: np.ndarray) -> dict:
         """Outputs between integration steps. Within a step the servo command is held, so
@@ -160,8 +161,9 @@ class Trajectory:
         out = {k: left[k][idx] + (right[k][idx] - left[k][idx]) * frac for k in left}
         # a step with a falling edge inside: the old command up to the edge, the new one after
         names = ("ax", "ay", "r_dot")
+        h = self.dt_step if self.dt_step is not None else self.t[1] - self.t[0]
         for j, i in enumerate(sw["step"].tolist()):
-            lo, hi = np.searchsorted(tg, [self.t[i], self.t[i] + (self.t[1] - self.t[0])], side="left")
+            lo, hi = np.searchsorted(tg, [self.t[i], self.t[i] + h], side="left")
             if hi <= lo:
                 continue
             tf, xf = sw["t"][j], sw["state"][j]
@@ -170,7 +172,7 @@ class Trajectory:
             seg = tg[lo:hi]
             before = seg < tf
             fb = np.clip((seg - self.t[i]) / max(tf - self.t[i], 1e-12), 0, 1)
-            t_end = self.t[i + 1] if i + 1 < n else self.t[i] + (self.t[1] - self.t[0])
+            t_end = self.t[i + 1] if i + 1 < n else self.t[i] + h
             fa = np.clip((seg - tf) / max(t_end - tf, 1e-12), 0, 1)
             for k, name in enumerate(names):
                 a = left[name][i] + (minus[k] - left[name][i]) * fb
@@ -273,7 +275,51 @@ def _mf(alpha, C, Fz, mu, shape):
 
 def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.ndarray,
              v_ref: np.ndarray, driver=None, pulse_rise_us: np.ndarray | None = None) -> Trajectory:
-    """Integrate the car over the grid ``t`` (uniform, starting at 0) with RK4.
+    """Integrate the car over the grid ``t`` (uniform, starting at 0) with RK4: the whole
+    run as one chunk of ``simulate_chunks`` (see there)."""
+    chunk = next(simulate_chunks(car, effects, t, steer_plan, v_ref, driver, pulse_rise_us))
+    return chunk.trajectory(t, v_ref)
+
+
+@dataclass
+class Chunk:
+    """Rows ``i0`` .. ``i0 + len(out) - 1`` of the truth, as the integrator left them."""
+
+    i0: int
+    out: np.ndarray  # (m, 13) states at the start of each step
+    aux: np.ndarray  # (m, 7) Fyf, Fyr, delta, dvx, dvy, dr, Fx
+    delta_cmd: np.ndarray
+    switches: dict  # steps (whole-run indices) with a falling edge inside
+    pulses: np.ndarray  # every servo pulse width [us] (shared; complete after the last chunk)
+    rise: np.ndarray  # their rising edges [us]
+    rhs: object
+    spool: bool
+    dt: float  # the integration step, t[1] - t[0]
+
+    def trajectory(self, t: np.ndarray, v_ref: np.ndarray) -> Trajectory:
+        """These rows as a Trajectory; ``t`` and ``v_ref`` are the whole run's (or this
+        chunk's own rows of them, when ``i0`` is 0 and it is the whole run)."""
+        rows = slice(self.i0, self.i0 + len(self.out))
+        out, aux = self.out, self.aux
+        X, Y, psi, vx, vy, r = (out[:, k] for k in range(6))
+        dvx, dvy, dr = aux[:, 3], aux[:, 4], aux[:, 5]
+        sw = dict(self.switches, step=self.switches["step"] - self.i0)
+        tr = Trajectory(t=t[rows], delta_cmd=self.delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
+                        r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
+                        x=X, y=Y, psi=psi, steer_pulses_us=self.pulses, Fx=aux[:, 6], states=out, rhs=self.rhs,
+                        steer_rise_us=self.rise, switches=sw, dt_step=self.dt)
+        tr.v_ref = np.asarray(v_ref[rows], float)
+        tr.spool = self.spool
+        return tr
+
+
+def simulate_chunks(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.ndarray,
+                    v_ref: np.ndarray, driver=None, pulse_rise_us: np.ndarray | None = None,
+                    chunk_steps: int | None = None):
+    """Integrate the car over the grid ``t`` (uniform, starting at 0) with RK4, yielding
+    ``Chunk`` s of ``chunk_steps`` rows (default: the whole run in one). The state is
+    carried from chunk to chunk, so the rows are those of the whole-run integration, bit
+    for bit; a long run need not hold every row at once.
 
     ``steer_plan`` is the road-wheel angle the driver wants [rad] on the grid, or
     ``driver(x, y, psi, vx)`` returns it in closed loop. Either way the servo
@@ -358,9 +404,6 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
         return (vx * cp - vy * sp, vx * sp + vy * cp, r, dvx, dvy, dr, ddelta, dFyf, dFyr,
                 phid, dphid, vx, err), (Fyf, Fyr, delta, dvx, dvy, dr, Fx)
 
-    out = np.zeros((n, 13))
-    aux = np.zeros((n, 7))
-    delta_cmd = np.zeros(n)
     if pulse_rise_us is None:
         pulse_rise_us = servo_rise_times_us(car, float(t[-1]), np.random.default_rng(0))
     rise = np.asarray(pulse_rise_us, dtype=np.int64)
@@ -371,7 +414,6 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
     dc = 0.0
     state = [0.0] * 13
     pending = None  # (falling edge [us], command [rad]) of the pulse in flight
-    sw_step, sw_t, sw_state, sw_old, sw_new = [], [], [], [], []
 
     def rk4(state, h, dc, vr, k1=None):
         if k1 is None:
@@ -385,62 +427,111 @@ def simulate(car: CarParams, effects: Effects, t: np.ndarray, steer_plan: np.nda
         return [x + h / 6.0 * (p + 2 * q + 2 * u + w) for x, p, q, u, w in zip(state, k1, k2, k3, k4)]
 
     dt_us = dt * 1e6
-    for i in range(n):
-        t0_us = t[i] * 1e6
-        # the width of pulse k is set when it starts (the driver's wish at the step that
-        # holds the rising edge); the servo takes it at the pulse's end, the falling edge,
-        # where the firmware measures it
-        while k_next < n_pulses and rise[k_next] < t0_us + dt_us - 1e-6:
-            want = driver(state[0], state[1], state[2], state[3]) if driver else float(steer_plan[i])
-            us = int(round(car.steer_center_us + want * car.steer_us_per_rad))
-            us = max(900, min(2100, us))
-            pulses[k_next] = us
-            pending = (int(rise[k_next]) + us, (us - car.steer_center_us) / car.steer_us_per_rad)
-            k_next += 1
-        if pending is not None and pending[0] <= t0_us + 1e-6:  # edge at (or, rounding, just before) t_i
-            dc = pending[1]
-            pending = None
+    chunk_steps = n if chunk_steps is None else max(1, int(chunk_steps))
+    spool_on = "locked_diff" in effects
+    for i0 in range(0, n, chunk_steps):
+        i1 = min(n, i0 + chunk_steps)
+        out = np.zeros((i1 - i0, 13))
+        aux = np.zeros((i1 - i0, 7))
+        delta_cmd = np.zeros(i1 - i0)
+        sw_step, sw_t, sw_state, sw_old, sw_new = [], [], [], [], []
+        for i in range(i0, i1):
+            t0_us = t[i] * 1e6
+            # the width of pulse k is set when it starts (the driver's wish at the step that
+            # holds the rising edge); the servo takes it at the pulse's end, the falling edge,
+            # where the firmware measures it
+            while k_next < n_pulses and rise[k_next] < t0_us + dt_us - 1e-6:
+                want = driver(state[0], state[1], state[2], state[3]) if driver else float(steer_plan[i])
+                us = int(round(car.steer_center_us + want * car.steer_us_per_rad))
+                us = max(900, min(2100, us))
+                pulses[k_next] = us
+                pending = (int(rise[k_next]) + us, (us - car.steer_center_us) / car.steer_us_per_rad)
+                k_next += 1
+            if pending is not None and pending[0] <= t0_us + 1e-6:  # edge at (or, rounding, just before) t_i
+                dc = pending[1]
+                pending = None
+                if not lag:
+                    state[6] = dc
+            if i == 0:
+                state[6] = dc
+            delta_cmd[i - i0] = dc
+            vr = float(v_ref[i])
+            k1, ax1 = rhs(state, dc, vr)
+            out[i - i0] = state
+            aux[i - i0] = ax1
+            if pending is not None and pending[0] < t0_us + dt_us - 1e-6:
+                # the falling edge lies inside this step: integrate up to it, take the command there
+                h1 = (pending[0] - t0_us) * 1e-6
+                state = rk4(state, h1, dc, vr, k1)
+                if not lag:
+                    state[6] = dc
+                sw_step.append(i)
+                sw_t.append(pending[0] * 1e-6)
+                sw_state.append(list(state))
+                sw_old.append(dc)
+                dc = pending[1]
+                sw_new.append(dc)
+                pending = None
+                if not lag:
+                    state[6] = dc
+                state = rk4(state, dt - h1, dc, vr)
+            else:
+                state = rk4(state, dt, dc, vr, k1)
             if not lag:
                 state[6] = dc
-        if i == 0:
-            state[6] = dc
-        delta_cmd[i] = dc
-        vr = float(v_ref[i])
-        k1, ax1 = rhs(state, dc, vr)
-        out[i] = state
-        aux[i] = ax1
-        if pending is not None and pending[0] < t0_us + dt_us - 1e-6:
-            # the falling edge lies inside this step: integrate up to it, take the command there
-            h1 = (pending[0] - t0_us) * 1e-6
-            state = rk4(state, h1, dc, vr, k1)
-            if not lag:
-                state[6] = dc
-            sw_step.append(i)
-            sw_t.append(pending[0] * 1e-6)
-            sw_state.append(list(state))
-            sw_old.append(dc)
-            dc = pending[1]
-            sw_new.append(dc)
-            pending = None
-            if not lag:
-                state[6] = dc
-            state = rk4(state, dt - h1, dc, vr)
-        else:
-            state = rk4(state, dt, dc, vr, k1)
-        if not lag:
-            state[6] = dc
-        if state[3] < 0.0:
-            state[3] = 0.0
-    X, Y, psi, vx, vy, r = (out[:, k] for k in range(6))
-    dvx, dvy, dr = aux[:, 3], aux[:, 4], aux[:, 5]
-    pulses[k_next:] = pulses[k_next - 1] if k_next else int(car.steer_center_us)
-    switches = {"step": np.asarray(sw_step, dtype=int), "t": np.asarray(sw_t, dtype=float),
-                "state": np.asarray(sw_state, dtype=float).reshape(-1, 13),
-                "old": np.asarray(sw_old, dtype=float), "new": np.asarray(sw_new, dtype=float)}
-    tr = Trajectory(t=t, delta_cmd=delta_cmd, delta=aux[:, 2], vx=vx, vy=vy, r=r,
-                    r_dot=dr, ax=dvx - vy * r, ay=dvy + vx * r, phi=out[:, 9], s=out[:, 11],
-                    x=X, y=Y, psi=psi, steer_pulses_us=pulses, Fx=aux[:, 6], states=out, rhs=rhs,
-                    steer_rise_us=rise, switches=switches)
-    tr.v_ref = np.asarray(v_ref, float)
-    tr.spool = spool
-    return tr
+            if state[3] < 0.0:
+                state[3] = 0.0
+        if i1 == n:
+            pulses[k_next:] = pulses[k_next - 1] if k_next else int(car.steer_center_us)
+        switches = {"step": np.asarray(sw_step, dtype=int), "t": np.asarray(sw_t, dtype=float),
+                    "state": np.asarray(sw_state, dtype=float).reshape(-1, 13),
+                    "old": np.asarray(sw_old, dtype=float), "new": np.asarray(sw_new, dtype=float)}
+        yield Chunk(i0=i0, out=out, aux=aux, delta_cmd=delta_cmd, switches=switches, pulses=pulses, rise=rise,
+                    rhs=rhs, spool=spool_on, dt=dt)
+
+
+class TrajectoryWindow:
+    """The rows of a chunked integration that later computations still need: chunks are
+    added at the end as they are integrated, rows no longer needed are dropped from the
+    start, so a long run is never held whole. ``trajectory()`` gives the rows held as a
+    Trajectory whose outputs (``dense``) equal the whole run's wherever its rows reach."""
+
+    def __init__(self, t: np.ndarray, v_ref: np.ndarray):
+        self.t, self.v_ref = t, v_ref  # the whole run's grids (small next to the states)
+        self.rows: Chunk | None = None
+
+    @property
+    def start(self) -> int:
+        return self.rows.i0
+
+    @property
+    def end(self) -> int:
+        """One past the last row held."""
+        return self.rows.i0 + len(self.rows.out)
+
+    def add(self, c: Chunk) -> None:
+        w = self.rows
+        if w is None:
+            self.rows = c
+            return
+        if c.i0 != self.end:
+            raise ValueError("chunks must be added in order")
+        sw = {k: np.concatenate([w.switches[k], c.switches[k]]) for k in w.switches}
+        self.rows = Chunk(i0=w.i0, out=np.concatenate([w.out, c.out]), aux=np.concatenate([w.aux, c.aux]),
+                          delta_cmd=np.concatenate([w.delta_cmd, c.delta_cmd]), switches=sw, pulses=c.pulses,
+                          rise=c.rise, rhs=c.rhs, spool=c.spool, dt=c.dt)
+
+    def keep_from(self, j: int) -> None:
+        """Drop the rows before ``j`` (whole-run index)."""
+        w = self.rows
+        k = min(max(0, j - w.i0), len(w.out) - 1)
+        if k == 0:
+            return
+        keep = w.switches["step"] >= w.i0 + k
+        sw = {name: v[keep] for name, v in w.switches.items()}
+        self.rows = Chunk(i0=w.i0 + k, out=w.out[k:].copy(), aux=w.aux[k:].copy(),
+                          delta_cmd=w.delta_cmd[k:].copy(), switches=sw, pulses=w.pulses, rise=w.rise,
+                          rhs=w.rhs, spool=w.spool, dt=w.dt)
+
+    def trajectory(self) -> Trajectory:
+        return self.rows.trajectory(self.t, self.v_ref)
