@@ -6,6 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
+# Fit percent is scored from this far into each stretch, everywhere (fit, compare, diagnose,
+# report) and for the noise floor alike: the floor's predictor needs 1 s of steer history, and
+# a model and its floor are only comparable on the same samples. (The cost a fit minimises
+# starts earlier, at 0.5 s, once the unknown initial state has died out.)
+SCORE_FROM_S = 1.0
+
 
 def autocorrelation(e: np.ndarray, max_lag: int) -> np.ndarray:
     """Normalised autocorrelation of e at lags 0..max_lag (FFT)."""

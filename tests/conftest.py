@@ -1,4 +1,8 @@
 import os
+
+# one BLAS thread in every test process and the tools it starts (see stid/__init__.py)
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 import subprocess
 import sys
 from pathlib import Path

@@ -29,11 +29,11 @@ estimator is wrong. Samples lost on the link are neither trained on nor scored."
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import toeplitz
+from scipy.linalg import cho_factor, cho_solve, lapack, toeplitz
 
-from stid.stats import tau_int
+from stid.stats import SCORE_FROM_S, tau_int
 
-MEMORY_S = 1.0
+MEMORY_S = SCORE_FROM_S  # 1 s of steer history; scored where every model is scored
 FOLDS = 5
 OUTS = ("ay", "r")
 
@@ -66,7 +66,23 @@ def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5
 
     One predictor per run (the speed law is expanded about the run's own median speed),
     cross-validated over FOLDS contiguous blocks of the run's stretches laid end to end, so
-    the short stretches of a run cut where the car slowed count too."""
+    the short stretches of a run cut where the car slowed count too.
+
+    The result is kept on ``stretches`` (diagnose, compare and the report ask for the same
+    floor of the same stretches several times; each costs a few Cholesky factors of ~500²)."""
+    key = (memory_s, keep_from_s, with_folds, ridge)
+    cache = getattr(stretches, "_floor_cache", None)
+    if cache is not None and key in cache:
+        return cache[key]
+    out = _floor_errors(stretches, memory_s, keep_from_s, with_folds, ridge)
+    try:
+        stretches._floor_cache = {**(cache or {}), key: out}
+    except AttributeError:  # a plain list: nothing to keep it on
+        pass
+    return out
+
+
+def _floor_errors(stretches, memory_s, keep_from_s, with_folds, ridge):
     err = {o: [] for o in OUTS}
     ref = {o: [] for o in OUTS}
     folds = []
@@ -127,11 +143,15 @@ def _run_errors(items, memory_s, keep_from_s, ridge):
     W, df_over_n = [], []
     for k in range(FOLDS):
         Gk, Bk = G - Gf[k], B - Bf[k]
-        R = Gk + ridge * np.trace(Gk) / p * np.eye(p)
-        W.append(np.linalg.solve(R, Bk))
-        # p: the effective number of parameters (the hat matrix's trace: speed columns that
-        # are zero at a constant speed, or nearly so, do not count)
-        df_over_n.append(float(np.trace(np.linalg.solve(R, Gk))) / max(nf.sum() - nf[k], 1.0))
+        lam = ridge * np.trace(Gk) / p
+        R = Gk + lam * np.eye(p)
+        # one Cholesky factor serves both: the weights, and the effective number of
+        # parameters (the hat matrix's trace, tr(R^-1 Gk) = p - lam tr(R^-1): speed columns
+        # that are zero at a constant speed, or nearly so, do not count)
+        c = cho_factor(R, check_finite=False)
+        W.append(cho_solve(c, Bk, check_finite=False))
+        r_inv = lapack.dpotri(c[0], lower=c[1])[0]
+        df_over_n.append(float(p - lam * np.trace(r_inv)) / max(nf.sum() - nf[k], 1.0))
     raw, keeps, fold_of = [], [], []
     start = 0
     for st in items:

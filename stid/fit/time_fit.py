@@ -20,6 +20,7 @@ from stid.fit.result import FitResult, Prediction, fit_percent
 from stid.fit.solver import ParamSpace, starting_points, covariance_sandwich, least_squares, to_physical
 from stid.fit import checks
 from stid.fit import intervals as jk
+from stid.stats import SCORE_FROM_S
 
 OUTPUTS = ("ay", "r")
 
@@ -192,10 +193,16 @@ def make_result(model, method: str, space: ParamSpace, p_hat: dict, cov: np.ndar
 
 
 def fill_fit_stats(result: FitResult, preds: list) -> None:
-    """Fit percent per output and the Gaussian log-likelihood over the kept samples."""
+    """Fit percent per output (scored from SCORE_FROM_S into each stretch, the noise floor's
+    samples) and the Gaussian log-likelihood over the kept samples (the cost's)."""
+    scored = [p.keep & ((p.t - p.t[0]) >= SCORE_FROM_S) for p in preds]
+    if sum(int(k.sum()) for k in scored) < 10:  # stretches too short to score late: score all kept
+        scored = [p.keep for p in preds]
+    ys = np.vstack([p.y[k] for p, k in zip(preds, scored)])
+    yhs = np.vstack([p.yhat[k] for p, k in zip(preds, scored)])
+    result.fit = {o: fit_percent(ys[:, i], yhs[:, i]) for i, o in enumerate(OUTPUTS)}
     y = np.vstack([p.y[p.keep] for p in preds])
     yh = np.vstack([p.yhat[p.keep] for p in preds])
-    result.fit = {o: fit_percent(y[:, i], yh[:, i]) for i, o in enumerate(OUTPUTS)}
     e = y - yh
     n = len(e)
     var = np.maximum(np.mean(e ** 2, axis=0), 1e-300)
