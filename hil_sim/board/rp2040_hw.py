@@ -69,10 +69,17 @@ def _fill(buf: ptr8, volts: ptr16, p: ptr32, cols: ptr8) -> int:
         if col == 255:  # AIN4, the temperature sensor: ~0.706 V at 27 C
             c = 876
         else:
+            # the sensor's voltage between stimulus rows, interpolated: a conversion between
+            # rows sees the signal at its own instant, not the row before (held, a scan 16 us
+            # before its tick read a value 184 us old)
             r = row
-            if r >= nrows:
+            if r >= nrows - 1:
                 r = nrows - 1
-            v = volts[r * ncols + col]
+                v = volts[r * ncols + col]
+            else:
+                v0 = volts[r * ncols + col]
+                v1 = volts[(r + 1) * ncols + col]
+                v = v0 + ((v1 - v0) * (rem // 1000)) // 1000000
             c = (v * 4095 + 16500) // 33000
             if c > 4095:
                 c = 4095

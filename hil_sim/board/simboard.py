@@ -310,11 +310,17 @@ class Board:
 
     # -- analog ---------------------------------------------------------------
     def volts_01mv(self, pin_no):
+        # the voltage at this instant, interpolated between the stimulus rows (a held row
+        # would make a sample read between rows up to one row period, 200 us, old)
         s = self.stim
-        row = self.now * s.fs // 1000000
-        if row >= s.n_rows:
-            row = s.n_rows - 1
-        return s.volts[row * s.n_cols + s.cols[pin_no]]
+        a = self.now * s.fs
+        row = a // 1000000
+        col = s.cols[pin_no]
+        if row >= s.n_rows - 1:
+            return s.volts[(s.n_rows - 1) * s.n_cols + col]
+        v0 = s.volts[row * s.n_cols + col]
+        v1 = s.volts[(row + 1) * s.n_cols + col]
+        return v0 + (v1 - v0) * (a % 1000000) // 1000000
 
     def _adc_fault(self):
         if self.now >= self.adc_fault_at:  # a one-off read error (loose connector, EMI)

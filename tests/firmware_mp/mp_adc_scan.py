@@ -23,8 +23,11 @@ class Sink:
 def expected(pin, t_ticks):
     # the RP2040 count of the stimulus at that instant (12 bits over 0..3.3 V)
     t = (t_ticks - b.start_ticks) & M30
-    row = t * s.fs // 1000000
-    v = s.volts[row * s.n_cols + s.cols[pin]]
+    a = t * s.fs
+    row = a // 1000000
+    v0 = s.volts[row * s.n_cols + s.cols[pin]]
+    v1 = s.volts[(row + 1) * s.n_cols + s.cols[pin]]
+    v = v0 + (v1 - v0) * (a % 1000000) // 1000000  # the signal between stimulus rows
     c = (v * 4095 + 16500) // 33000
     return 4095 if c > 4095 else c
 
