@@ -206,7 +206,7 @@ def spectrum_figure(chain, stretches):
     something the steer explains is still missing there."""
     from scipy import signal  # the report draws; its import time is not a command's
 
-    from stid.analysis.noise_floor import floor_errors
+    from stid.analysis.noise_floor import floor_errors, floor_rate
 
     fl, _ = floor_errors(stretches)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -214,7 +214,8 @@ def spectrum_figure(chain, stretches):
     nper = int(4 * fs)
     for j, (ax, out) in enumerate(zip(axes, ("ay", "r"))):
         if fl[out]:  # (runs too short for the floor's predictor have none)
-            f, P = signal.welch(np.concatenate(fl[out]), fs=fs, nperseg=nper)
+            ffs = floor_rate(stretches)  # the floor's predictor runs on every other sample
+            f, P = signal.welch(np.concatenate(fl[out]), fs=ffs, nperseg=int(4 * ffs))
             ax.semilogy(f, P, color="k", lw=1.5, label="noise floor (what a correct model leaves)")
         for k, (name, res) in enumerate(chain):
             col = _color(k, len(chain))

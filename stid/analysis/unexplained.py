@@ -67,7 +67,7 @@ def _regressors(stretches, preds):
 def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se, reasons=(),
                          catalogue_done: bool = True) -> Unexplained:
     from stid.analysis.evidence import disagreements, fit_groups
-    from stid.analysis.noise_floor import floor_errors
+    from stid.analysis.noise_floor import floor_errors, floor_rate
     from stid.stats import tau_int
 
     gap = {o: float(floor[o] - result.fit[o]) for o in OUTS}
@@ -99,7 +99,7 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
             if lo >= fs / 2:
                 continue
             m = np.sqrt(np.mean([_band_rms((p.y - p.yhat)[p.keep, i], fs, lo, hi) ** 2 for p in preds]))
-            f = np.sqrt(np.mean([_band_rms(x, fs, lo, hi) ** 2 for x in fe[o]])) if fe[o] else np.nan
+            f = np.sqrt(np.mean([_band_rms(x, floor_rate(stretches), lo, hi) ** 2 for x in fe[o]])) if fe[o] else np.nan
             rows.append((f"{lo:g}-{min(hi, fs / 2):g} Hz", float(m), float(f)))
         u.by_band[o] = rows
         if o in short:
