@@ -5,9 +5,14 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from conftest import REPO
 
 
+# ~2.5 min of simulations and fits: `make bench` runs the same harness for real; this checks it
+# in the slow set (`pytest -m slow`) so that `make test` stays within its ~10 minutes.
+@pytest.mark.slow
 def test_make_bench_quick_mode_produces_its_table():
     r = subprocess.run([sys.executable, "-m", "benchmarks.run", "--quick"], cwd=REPO, capture_output=True,
                        text=True, timeout=600)
