@@ -25,6 +25,8 @@ import rp2
 from machine import Pin
 from micropython import const
 
+from pulses import ServoPulse
+
 _MASK30 = const(0x3FFFFFFF)
 _MIN_PULSE_US = const(400)
 _MAX_PULSE_US = const(2600)
@@ -63,7 +65,7 @@ def pulse_counter():
     jmp(y_dec, "high")  # noqa: F821
 
 
-class ServoPulsePio:
+class ServoPulsePio(ServoPulse):
     """Same interface as pulses.ServoPulse: width [us] and falling-edge ticks of the
     latest valid pulse; read(now) is called by the sampler every period."""
 
@@ -107,21 +109,11 @@ class ServoPulsePio:
             self.t_fall = (self.t0 + ((~fall) & _MASK30) - _FALL_LAG_US) & _MASK30
 
     def read(self, now, before=-1):
-        # as pulses.ServoPulse.read: the same staleness rule (no tick-wrap aliasing), and
-        # with before >= 0 the latest pulse that ended before those ticks
+        # the state machine's words become width and edge here; which pulse counts and
+        # when it is stale is pulses.ServoPulse's rule, shared (the tear re-read is a no-op
+        # here: nothing writes the fields between two reads)
         self._drain()
-        tf = self.t_fall
-        w = self.width
-        if before >= 0 and w and time.ticks_diff(tf, before) >= 0:
-            tf = self.f_prev
-            w = self.w_prev
-        self.t_read = tf
-        if tf == self._stale or w == 0:
-            return 0
-        if time.ticks_diff(now, tf) > self.timeout_us:
-            self._stale = tf
-            return 0
-        return w
+        return ServoPulse.read(self, now, before)
 
     def stop(self):
         self._sm.active(0)
