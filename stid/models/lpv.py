@@ -16,7 +16,8 @@ geometric grid of speeds 1% apart and interpolated linearly between grid points
 (the interpolation error is of order (1%)^2 / 8 of the speed dependence, far below
 the noise). The continuous matrices at the grid speeds come from four builds of
 the model: every entry of a single-track model with the catalogue's effects is of
-the form c0 + c1 vx + c2 / vx, which three builds determine and a fourth checks.
+the form c0 + c1 vx + c2 / vx, which three builds determine and a fourth checks
+(once per parameter set: every stretch of an evaluation shares the law).
 A model for which the check fails (a user's effect with another speed law) is
 built at every grid speed instead: slower, never wrong.
 
@@ -72,10 +73,24 @@ def _ltv_run(F, G0, G1, C, D, off, idx, w, idx_s, w_s, u, x0):  # pragma: no cov
     return y
 
 
+_GRIDS: dict = {}  # speed series -> its grid: a fit simulates the same stretches hundreds of times
+
+
 def speed_grid(vx: np.ndarray, step: float = GRID_STEP):
     """Grid speeds covering vx; for every sample the grid interval and the weight of its
     upper end, at the sample (outputs) and half a step later (the step's midpoint speed,
     which makes the time-varying recursion second-order accurate)."""
+    vx = np.ascontiguousarray(vx, float)
+    key = (len(vx), step, hash(vx.tobytes()))
+    hit = _GRIDS.get(key)
+    if hit is None:
+        if len(_GRIDS) >= 64:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        hit = _GRIDS[key] = _speed_grid(vx, step)
+    return hit
+
+
+def _speed_grid(vx: np.ndarray, step: float):
     v = np.maximum(np.asarray(vx, float), V_FLOOR)
     lv = np.log(v)
     lo, hi = float(lv.min()), float(lv.max())
@@ -131,7 +146,7 @@ def _batched_foh(A, B, dt):
     return F, G1 - G2, G2
 
 
-def _speed_law(mats: list, speeds, V_inv=None) -> tuple | None:
+def _speed_law(mats: list, speeds, V_inv=None) -> np.ndarray | None:
     """Coefficients (c0, c1, c2) with X(v) = c0 + c1 v + c2 / v from builds at the first
     three speeds, or None when the fourth build does not follow that law."""
     if V_inv is None:
@@ -147,6 +162,53 @@ def _speed_law(mats: list, speeds, V_inv=None) -> tuple | None:
     return coef
 
 
+PROBE_SPEEDS = (1.0, 3.0, 9.0, 4.7)  # m/s: three determine the speed law, the fourth checks it
+
+
+class SpeedLaw:
+    """The matrices of ``build(v)`` as c0 + c1 v + c2 / v, from builds at PROBE_SPEEDS.
+
+    One law serves every stretch (and every speed) of an evaluation: the parameters
+    are the same, only the speeds differ. ``ok`` is False when the fourth build does
+    not follow the law (a user's effect with another speed law); then each stretch
+    builds at its own grid speeds."""
+
+    _V_INV = np.linalg.inv(np.column_stack([np.ones(3), np.asarray(PROBE_SPEEDS[:3]),
+                                            1.0 / np.asarray(PROBE_SPEEDS[:3])]))
+
+    def __init__(self, parts):
+        built = [parts(v) for v in PROBE_SPEEDS]
+        self.shapes = [b.shape for b in built[0]]
+        self.coef = []
+        for j in range(len(self.shapes)):
+            c = _speed_law([b[j] for b in built], PROBE_SPEEDS, self._V_INV)
+            if c is None:
+                self.coef = None
+                break
+            self.coef.append(c)
+        self.ok = self.coef is not None
+
+    def at(self, grid: np.ndarray) -> list:
+        g = np.asarray(grid, float)[:, None]
+        return [(c[0][None] + c[1][None] * g + c[2][None] / g).reshape((len(g),) + shape)
+                for c, shape in zip(self.coef, self.shapes)]
+
+
+def system_parts(build, outputs, inputs):
+    """``parts(v) -> (A, B, C, D, offsets)`` of ``build(v)`` restricted to the named
+    outputs and inputs."""
+    outs, ins = list(outputs), list(inputs)
+
+    def parts(v):
+        s = build(float(v))
+        io = [s.out(o) for o in outs]
+        ii = [s.inp(i) for i in ins]
+        return (s.A, s.B[:, ii], s.C[io], s.D[np.ix_(io, ii)],
+                np.array([s.offsets.get(o, 0.0) for o in outs]))
+
+    return parts
+
+
 class LpvSimulator:
     """``sim(u) -> y`` for a model built at every speed by ``build(v) -> LinSys``.
 
@@ -158,37 +220,20 @@ class LpvSimulator:
         Forward speed at each sample [m/s].
     dt : float
         Sample period [s].
+    law : SpeedLaw, optional
+        The speed law of ``build`` when the caller has it already (the same parameters
+        simulated on several stretches): saves the probe builds.
     """
 
-    def __init__(self, build, vx, dt: float, outputs, inputs):
+    def __init__(self, build, vx, dt: float, outputs, inputs, law: SpeedLaw | None = None):
         grid, self.idx, self.w, self.idx_s, self.w_s = speed_grid(vx)
         self.n_t = len(self.idx)
-        outs, ins = list(outputs), list(inputs)
-
-        def parts(v):
-            s = build(float(v))
-            io = [s.out(o) for o in outs]
-            ii = [s.inp(i) for i in ins]
-            return (s.A, s.B[:, ii], s.C[io], s.D[np.ix_(io, ii)],
-                    np.array([s.offsets.get(o, 0.0) for o in outs]))
-
-        vmin, vmax = float(grid[0]), float(grid[-1])
-        probe = [vmin, np.sqrt(vmin * vmax) * 1.013, vmax * 1.07, 0.5 * (vmin + vmax) * 0.93]
-        if vmax / vmin < 1.0 + 1e-12:
-            probe = [vmin, vmin * 1.3, vmin * 0.8, vmin * 1.11]
-        built = [parts(v) for v in probe]
-        stacks = []
-        pv = np.asarray(probe[:3], float)
-        V_inv = np.linalg.inv(np.column_stack([np.ones(3), pv, 1.0 / pv]))
-        for j in range(5):
-            coef = _speed_law([b[j] for b in built], probe, V_inv)
-            if coef is None:
-                stacks = None
-                break
-            shape = built[0][j].shape
-            stacks.append((coef[0][None] + coef[1][None] * grid[:, None] + coef[2][None] / grid[:, None])
-                          .reshape((len(grid),) + shape))
-        if stacks is None:  # an effect with another speed law: build at every grid speed
+        parts = system_parts(build, outputs, inputs)
+        if law is None:
+            law = SpeedLaw(parts)
+        if law.ok:
+            stacks = law.at(grid)
+        else:  # an effect with another speed law: build at every grid speed
             every = [parts(v) for v in grid]
             stacks = [np.stack([e[j] for e in every]) for j in range(5)]
         A, B, C, D, off = stacks

@@ -57,6 +57,7 @@ class Model:
                 self.params.append(p)
         self._ordered = sorted(self.effects, key=lambda e: _STAGE_ORDER[e.stage])
         self._warm: dict = {}  # last converged force correction per steer history (nonlinear effects)
+        self._laws: dict = {}  # speed laws of the last few parameter sets (stid.models.lpv.SpeedLaw)
         self.converged = True
         # The sensors' output filters are part of the measurement, not effects to discover.
         # They come with the data (stid.sensor_chain; a stretch passes its own chain to
@@ -133,9 +134,21 @@ class Model:
         if v.ndim == 0 or (len(v) and np.ptp(v) == 0.0):
             v0 = float(v) if v.ndim == 0 else float(v[0])
             return self.build(p, v0, sensors).simulator(dt, list(outputs), list(inputs))
-        from stid.models.lpv import LpvSimulator
+        from stid.models.lpv import LpvSimulator, SpeedLaw, system_parts
 
-        return LpvSimulator(lambda s: self.build(p, s, sensors), v, dt, outputs, inputs)
+        def build(s):
+            return self.build(p, s, sensors)
+
+        # one evaluation simulates the same parameters on every stretch: the speed law
+        # (three builds and a check) is found once for all of them
+        key = (tuple(sorted(p.items())), tuple(sorted((sensors or {}).items())), tuple(outputs), tuple(inputs))
+        law = self._laws.get(key)
+        if law is None:
+            law = SpeedLaw(system_parts(build, outputs, inputs))
+            if len(self._laws) >= 8:
+                self._laws.pop(next(iter(self._laws)))
+            self._laws[key] = law
+        return LpvSimulator(build, v, dt, outputs, inputs, law=law)
 
     def simulate(self, p: dict, steer: np.ndarray, dt: float, vx, outputs=MEASURED,
                  max_iter: int = 80, tol: float = 1e-9, sensors: dict | None = None) -> np.ndarray:
