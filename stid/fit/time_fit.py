@@ -67,7 +67,10 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     if multistart is None:
         multistart = bool(model.effects)
     starts = starting_points(model, space, p0, multistart)
-    res = least_squares(lambda p: residual(p, sigma), space, starts)
+    # when the weights are refined below, this first solve only has to find them (to a
+    # fraction of a percent): a loose tolerance saves most of its iterations, which creep
+    # linearly on a model that misses an effect
+    res = least_squares(lambda p: residual(p, sigma), space, starts, **({"ftol": 1e-4} if reweight else {}))
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once
     if reweight:
