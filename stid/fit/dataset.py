@@ -109,9 +109,13 @@ class Stretches(list):
         self.notes = list(notes or [])
 
 
+_BUILT: dict = {}  # (the runs, the arguments) -> their Stretches: a command asks several times
+
+
 def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: float | None = None,
                       trim_s: float = 0.5, constant_speed: bool = False, method: str = "") -> Stretches:
-    """Stretches of every run for the dynamic fits.
+    """Stretches of every run for the dynamic fits (built once for the same runs and
+    arguments: ``stid fit`` fits and then judges on them; treat them as read-only).
 
     By default every stretch where the car moves forward faster than ``V_MOVING`` for
     at least ``min_s`` (the time-domain fit follows the measured speed). With
@@ -119,6 +123,19 @@ def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: 
     frequency-response methods (named by ``method`` in messages) need one speed.
     ``target_fs``: default FIT_FS, or TARGET_FS with ``constant_speed``.
     """
+    runs = tuple(runs)
+    key = (tuple(id(r) for r in runs), min_s, target_fs, trim_s, constant_speed, method)
+    hit = _BUILT.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], runs)):
+        return hit[1]
+    built = _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method)
+    if len(_BUILT) >= 4:
+        _BUILT.pop(next(iter(_BUILT)))
+    _BUILT[key] = (runs, built)  # the runs are held, so their ids cannot be reused while cached
+    return built
+
+
+def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -> Stretches:
     if target_fs is None:
         target_fs = TARGET_FS if constant_speed else FIT_FS
     out = []
