@@ -80,6 +80,7 @@ class Candidate:
     same_symptom_as: str = ""
     evidence: object = None
     skipped: str = ""
+    screen: dict = field(default_factory=dict)  # the linearised step's prediction (see screen_candidates)
 
     def p_words(self) -> str:
         return p_in_words(self.p_value, self.level)
@@ -92,6 +93,11 @@ class Candidate:
         out = {"effect": self.effect, "significant": self.significant}
         if self.skipped:
             out["skipped"] = self.skipped
+            return out
+        if self.result is None:  # screened out by the linearised step: its prediction, not a fit
+            out.update({"screened_out": self.why_not, "lr": round(self.lr, 1),
+                        "p_value": float(f"{self.p_value:.3g}"), "chance": p_in_words(self.p_value, self.level),
+                        "predicted_fit": {k: round(v, 2) for k, v in self.screen["fit"].items()}})
             return out
         res = self.result
         ci = dict(zip(res.names, res.ci95))
@@ -181,9 +187,13 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         c.skipped = screen_out(available_effects()[name], stretches)
         cands.append(c)
     todo = [c for c in cands if not c.skipped]
-    results = _fit_candidates(model_name, [c.effect for c in todo], vehicle, stretches, base.all_params(), progress)
     level = ALPHA / max(len(todo), 1)
-    for c, res in zip(todo, results):
+    if progress:
+        progress.step(f"screening {len(todo)} effects")
+    to_fit = screen_candidates(model_name, todo, vehicle, stretches, base, n_eff, level)
+    results = _fit_candidates(model_name, [c.effect for c in to_fit], vehicle, stretches, base.all_params(),
+                              progress)
+    for c, res in zip(to_fit, results):
         c.result = res
         k = len(available_effects()[c.effect].params)
         c.lr = max(_lr(base, res, n_eff), 0.0)
@@ -191,9 +201,10 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         c.level = level
         c.gain = {o: res.fit[o] - base.fit[o] for o in OUTS}
         c.delta_bic = float(k * math.log(n_eff) - c.lr)
+    todo = to_fit + [c for c in todo if c.result is None]
     # (a floor the data are too short to estimate is nan: then only MIN_GAIN decides)
     gap = {o: max(floor[o] - base.fit[o], 0.0) if np.isfinite(floor[o]) else 0.0 for o in OUTS}
-    for c in todo:
+    for c in to_fit:
         # it must gain at least MIN_GAIN points, and a quarter of the gap to the noise floor
         # where there is one (a nonlinear effect can beat the linear floor: then MIN_GAIN decides)
         need = {o: max(MIN_GAIN, GAP_FRACTION * gap[o]) for o in OUTS}
@@ -215,6 +226,94 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
             c.explanation = explain(c, base, stretches)
     ordered = todo + [c for c in cands if c.skipped]
     return Diagnosis(model_name, base, floor, ra.tau_int, n_eff, ordered, floor_se=floor_se)
+
+
+MAX_FULL_FITS = 4  # candidates the screen passes on to a full fit, best first
+
+
+def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level) -> list:
+    """The candidates worth a full fit, best first; the others get the screen's verdict.
+
+    A score test (Lagrange multiplier): at the current model's fit, the candidate with
+    its effect switched off is the same model. One Gauss-Newton step from there, with the
+    effect's parameters held to their physical side (a lag is not negative) and the
+    model's own parameters free, predicts how far the candidate can lower the cost: a
+    few simulations per candidate instead of a fit. A candidate passes to the full fit
+    unless that step is within chance by a wide margin or predicts less than half the
+    gain the naming rule needs; at most MAX_FULL_FITS of them, best first. A parameter
+    whose off value lies far outside its range (a friction coefficient of 1e6) is stepped
+    to its nearest bound instead (the secant, scaled by a coefficient >= 0). An effect
+    with no off value cannot be screened and is always fitted."""
+    from scipy.optimize import lsq_linear
+
+    from stid.fit.time_fit import _keep, simulate
+
+    sigma = np.asarray(base.extra.get("sigma", np.ones(2)), float)
+    keeps = [_keep(st, 0.5) for st in stretches]
+
+    def resid(model, p):
+        return np.concatenate([((simulate(model, p, st)[k] - st.y[k]) / sigma) for st, k in zip(stretches, keeps)])
+
+    m0 = Model(model_name, vehicle)
+    p0 = dict(base.all_params())
+    r0 = resid(m0, p0)  # (n, 2)
+    cols = []
+    for n in base.names:  # the model's own parameters: shared by every candidate
+        lo, hi = m0.bounds(n)
+        h = 1e-4 * (abs(p0[n]) if m0.param(n).log else (hi - lo))
+        cols.append((resid(m0, dict(p0, **{n: p0[n] + h})) - r0) / h)
+    always, screened = [], []
+    for c in cands:
+        cls = available_effects()[c.effect]
+        offable = [q for q in cls.params if q.zero is not None]
+        if not offable:
+            always.append(c)
+            continue
+        m = Model(f"{model_name}+{c.effect}", vehicle)
+        q0 = dict(p0, **{q.name: (q.zero if q.zero is not None else q.value("init", vehicle)) for q in cls.params})
+        rq = resid(m, q0)
+        J, lo_b, hi_b = list(cols), [-np.inf] * len(cols), [np.inf] * len(cols)
+        for q in offable:  # a coefficient on the change a small step away from the zero makes
+            lo, hi = m.bounds(q.name)
+            z = q0[q.name]
+            if z > hi or z < lo - (hi - lo):  # an off value far outside the range (mu = 1e6): the secant
+                h = (hi if z > hi else lo) - z  # to the nearest bound, scaled by c >= 0
+                c_lo, c_hi = 0.0, np.inf
+            else:
+                d0 = q.value("init", vehicle)
+                h = 0.01 * abs(d0) if d0 != 0 else 1e-3 * (hi - lo)
+                c_lo, c_hi = (0.0, np.inf) if q.log else sorted(((lo - z) / h, (hi - z) / h))
+            J.append(resid(m, dict(q0, **{q.name: z + h})) - rq)
+            lo_b.append(c_lo)
+            hi_b.append(c_hi)
+        A = np.stack([j.ravel() for j in J], axis=1)
+        scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)  # columns of N/rad and metres alike
+        step = lsq_linear(A / scale, -rq.ravel(), bounds=(np.array(lo_b) * scale, np.array(hi_b) * scale))
+        r1 = (rq.ravel() + (A / scale) @ step.x).reshape(-1, 2)
+        ratio = np.sum(rq ** 2, axis=0) / np.maximum(np.sum(r1 ** 2, axis=0), 1e-300)
+        c.lr = max(float(n_eff * np.sum(np.log(ratio))), 0.0)
+        c.p_value = float(chdtrc(len(offable), c.lr))
+        c.level = level
+        fit_now = {o: base.fit[o] for o in OUTS}
+        c.screen = {"fit": {o: 100.0 - (100.0 - fit_now[o]) / np.sqrt(ratio[i]) for i, o in enumerate(OUTS)}}
+        c.gain = {o: c.screen["fit"][o] - fit_now[o] for o in OUTS}
+        screened.append(c)
+    screened.sort(key=lambda c: -c.lr)
+    keep = []
+    for c in screened:
+        best_gain = max(c.gain.values())
+        if c.p_value >= 100 * level:
+            c.why_not = (f"screened out: a linearised step from {model_name} is within chance "
+                         f"({p_in_words(c.p_value, level)})")
+        elif best_gain < 0.5 * MIN_GAIN:
+            c.why_not = f"screened out: a linearised step from {model_name} gains only {best_gain:.2f} fit points"
+        elif len(keep) >= MAX_FULL_FITS:
+            c.screen["capped"] = True
+            c.why_not = (f"screened out: {MAX_FULL_FITS} candidates gain more in a linearised step from "
+                         f"{model_name} (this one: {best_gain:.1f} fit points)")
+        else:
+            keep.append(c)
+    return keep + always
 
 
 def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
@@ -244,11 +343,13 @@ def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
         # two effects missing at once: the second bends the first's parameter differently at
         # each speed. The first is still named if its value holds once one of the other
         # passing candidates is fitted with it (that one is then tested in the next round).
-        for other in passing[1:5]:
+        # (candidates the screen passed over only for want of room are partners too)
+        capped = [c for c in ranked if c.result is None and c.screen.get("capped")]
+        for other in (passing[1:] + capped)[:4]:
             name2 = f"{model_name}+{top.effect}+{other.effect}"
             if progress:
                 progress.step(f"checking {top.effect} with {other.effect}")
-            init = dict(other.result.all_params(), **top.result.all_params())
+            init = dict(other.result.all_params() if other.result is not None else {}, **top.result.all_params())
             both = fit((), vehicle, name2, "time", stretches=stretches, init=init, multistart=False)
             ev = check_evidence(name2, top.effect, vehicle, stretches, both)
             if ev.holds:

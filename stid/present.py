@@ -51,6 +51,10 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
             if c.skipped:
                 lines.extend(_wrap(f"{c.effect:<22}{'':>8}{'':>8}   not tested: {c.skipped}"))
                 continue
+            if c.result is None:  # the screen's verdict: no fit to show
+                lines.extend(_wrap(f"{c.effect:<22}{'-':>8}{'-':>8}   {c.why_not}",
+                                   indent="  " + " " * 41, first="  "))
+                continue
             verdict = "NAMED: " + c.p_words() if c.significant else c.why_not
             lines.extend(_wrap(f"{c.effect:<22}{_pct(c.result.fit['ay']):>8}{_pct(c.result.fit['r']):>8}   "
                                f"{verdict}", indent="  " + " " * 41, first="  "))

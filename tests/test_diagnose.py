@@ -180,3 +180,48 @@ def test_a_parameter_is_one_value_across_speeds_only_within_its_intervals_and_a_
     assert disagreements(parts((0.24, 0.005), (0.36, 0.005)), ["k"])  # sigma = 60 ms x speed
     assert not disagreements(parts((0.0825, 0.0005), (0.0797, 0.0001)), ["k"])  # 3%: model error, not physics
     assert not disagreements(parts((0.24, 0.08), (0.36, 0.08)), ["k"])  # inside wide intervals: no evidence
+
+
+def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_absent(rc_vehicle):
+    """The linearised screen (a score test from the current model) decides which candidates
+    get a full fit. Data written here: the single track of test_one_path driven through a
+    first-order servo lag of 40 ms (exact discretisation), with white sensor noise. The
+    lag, and the pure delay that mimics it, must pass to the full fit; a yaw moment from a
+    locked differential and sensor offsets, absent from the data, must not."""
+    import numpy as np
+    from scipy.linalg import expm
+
+    from stid.analysis.residuals import analyse
+    from stid.diagnose import Candidate, screen_candidates
+    from stid.fit.dataset import Stretch, Stretches
+    from stid.fit.fitting import fit
+    from test_one_path import bicycle_run
+
+    fs, tau = 200.0, 0.040
+    stretches = []
+    rng = np.random.default_rng(5)
+    for seed, v in ((1, 4.0), (2, 6.0)):
+        run = bicycle_run(lambda t: np.full(len(t), v), T=40.0, fs=fs, seed=seed)
+        # the servo: tau d' + d = u, exact for an input held over each sample
+        e = expm(np.array([[-1 / tau, 1 / tau], [0.0, 0.0]]) / fs)
+        wheel = np.empty_like(run["steer"])
+        d = run["steer"][0]
+        for i, u in enumerate(run["steer"]):
+            wheel[i] = d
+            d = e[0, 0] * d + e[0, 1] * u
+        lagged = bicycle_run(lambda t: np.full(len(t), v), T=40.0, fs=fs, seed=seed, steer=wheel)
+        ay = lagged["ay"] + 0.02 * np.std(lagged["ay"]) * rng.standard_normal(len(wheel))
+        r = lagged["r"] + 0.02 * np.std(lagged["r"]) * rng.standard_normal(len(wheel))
+        stretches.append(Stretch(f"run{seed}", run["t"], run["steer"], ay, r, np.full(len(wheel), v), v))
+    stretches = Stretches(stretches)
+    base = fit((), rc_vehicle, "bicycle", "time", stretches=stretches)
+    ra = analyse(base.predictions)
+    n_eff = ra.n / max(ra.tau_int.values())
+    names = ["actuator_lag", "sensor_delay", "locked_diff", "sensor_bias"]
+    cands = [Candidate(n) for n in names]
+    kept = [c.effect for c in screen_candidates("bicycle", cands, rc_vehicle, stretches, base, n_eff, 0.01 / 4)]
+    assert kept[0] in ("actuator_lag", "sensor_delay") and {"actuator_lag", "sensor_delay"} <= set(kept), \
+        [(c.effect, c.lr, c.why_not) for c in cands]
+    for c in cands:
+        if c.effect in ("locked_diff", "sensor_bias"):
+            assert c.effect not in kept and c.why_not.startswith("screened out"), (c.effect, c.lr, c.gain)

@@ -21,18 +21,20 @@ M, A, B = 9.31, 0.2326, 0.2874
 CF, CR, IZ = 400.0, 475.0, 0.25
 
 
-def bicycle_run(vx_of_t, T=40.0, fs=100.0, seed=0, steer_rms_deg=3.0, bw=3.0):
+def bicycle_run(vx_of_t, T=40.0, fs=100.0, seed=0, steer_rms_deg=3.0, bw=3.0, steer=None):
     """A linear single track written from its equations of motion, the steer held over each
     sample and the speed frozen within it: exact per-sample discretisation (matrix
-    exponential), so the data are the physics to rounding. t, steer, ay, r, vx."""
+    exponential), so the data are the physics to rounding. t, steer, ay, r, vx.
+    ``steer``: the road-wheel angle to drive it with (default: band-limited random steer)."""
     from scipy.linalg import expm
 
     t = np.arange(int(T * fs)) / fs
-    rng = np.random.default_rng(seed)
-    spec = np.fft.rfft(rng.standard_normal(len(t)))
-    spec[np.fft.rfftfreq(len(t), 1 / fs) > bw] = 0.0
-    steer = np.fft.irfft(spec, len(t))
-    steer *= np.radians(steer_rms_deg) / np.std(steer)
+    if steer is None:
+        rng = np.random.default_rng(seed)
+        spec = np.fft.rfft(rng.standard_normal(len(t)))
+        spec[np.fft.rfftfreq(len(t), 1 / fs) > bw] = 0.0
+        steer = np.fft.irfft(spec, len(t))
+        steer *= np.radians(steer_rms_deg) / np.std(steer)
     vx = vx_of_t(t)
     x = np.zeros(2)
     ay, r = np.empty(len(t)), np.empty(len(t))
