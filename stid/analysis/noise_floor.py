@@ -150,24 +150,24 @@ def _run_errors(items, memory_s, keep_from_s, ridge):
         fold = np.minimum(np.searchsorted(edges, start + np.arange(len(st.t)), side="right") - 1, FOLDS - 1)
         return X, Y, use, keep, fold
 
-    G = B = Gf = Bf = None
+    Gf = Bf = None
     nf = np.zeros(FOLDS)
     start = 0
+    built = []  # the design of each stretch, kept for scoring (building it costs as much as using it)
     for st in items:
-        X, Y, use, _, fold = rows(st, start)
+        X, Y, use, keep, fold = rows(st, start)
+        built.append((X, Y, keep, fold))
         start += len(st.steer)
-        if G is None:
+        if Gf is None:
             p = X.shape[1]
-            G, B = np.zeros((p, p)), np.zeros((p, 2))
             Gf, Bf = np.zeros((FOLDS, p, p)), np.zeros((FOLDS, p, 2))
-        G += X[use].T @ X[use]
-        B += X[use].T @ Y[use]
         for k in range(FOLDS):
             m = use & (fold == k)
             if m.any():
                 Gf[k] += X[m].T @ X[m]
                 Bf[k] += X[m].T @ Y[m]
                 nf[k] += m.sum()
+    G, B = Gf.sum(axis=0), Bf.sum(axis=0)  # the folds partition the used rows
     p = G.shape[0]
     W, df_over_n = [], []
     for k in range(FOLDS):
@@ -182,10 +182,7 @@ def _run_errors(items, memory_s, keep_from_s, ridge):
         r_inv = lapack.dpotri(c[0], lower=c[1])[0]
         df_over_n.append(float(p - lam * np.trace(r_inv)) / max(nf.sum() - nf[k], 1.0))
     raw, keeps, fold_of = [], [], []
-    start = 0
-    for st in items:
-        X, Y, _, keep, fold = rows(st, start)
-        start += len(st.steer)
+    for X, Y, keep, fold in built:
         E = np.empty_like(Y)
         for k in range(FOLDS):
             m = fold == k
