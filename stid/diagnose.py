@@ -303,11 +303,14 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
     for c in screened:
         best_gain = max(c.gain.values())
         if c.p_value >= 100 * level:
+            c.screen["why"] = "chance"
             c.why_not = (f"screened out: a linearised step from {model_name} is within chance "
                          f"({p_in_words(c.p_value, level)})")
         elif best_gain < 0.5 * MIN_GAIN:
+            c.screen["why"] = "small"
             c.why_not = f"screened out: a linearised step from {model_name} gains only {best_gain:.2f} fit points"
         elif len(keep) >= MAX_FULL_FITS:
+            c.screen["why"] = "capped"
             c.screen["capped"] = True
             c.why_not = (f"screened out: {MAX_FULL_FITS} candidates gain more in a linearised step from "
                          f"{model_name} (this one: {best_gain:.1f} fit points)")

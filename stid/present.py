@@ -36,6 +36,26 @@ def _command(runs, vehicle_path, *rest) -> str:
     return " ".join(shlex.quote(str(p)) for p in parts)
 
 
+def _screened_line(d) -> str:
+    """The candidates the linearised screen kept from a full fit, grouped by why."""
+    groups = {"chance": [], "small": [], "capped": []}
+    for c in d.candidates:
+        if c.result is None and not c.skipped:
+            gain = max(c.gain.values()) if c.gain else 0.0
+            groups[c.screen.get("why", "small")].append(
+                f"{c.effect} ({gain:.1f} points)" if c.screen.get("why") == "capped" else c.effect)
+    parts = []
+    if groups["capped"]:
+        parts.append("ranked below the four best: " + ", ".join(groups["capped"]))
+    if groups["small"]:
+        parts.append("would gain under 0.25 fit points: " + ", ".join(groups["small"]))
+    if groups["chance"]:
+        parts.append("within chance: " + ", ".join(groups["chance"]))
+    if not parts:
+        return ""
+    return f"not fitted (judged by a linearised step from {d.model}): " + "; ".join(parts)
+
+
 def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> str:
     """What to add first, why, what the others are, and the next command."""
     lines = []
@@ -51,13 +71,14 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
             if c.skipped:
                 lines.extend(_wrap(f"{c.effect:<22}{'':>8}{'':>8}   not tested: {c.skipped}"))
                 continue
-            if c.result is None:  # the screen's verdict: no fit to show
-                lines.extend(_wrap(f"{c.effect:<22}{'-':>8}{'-':>8}   {c.why_not}",
-                                   indent="  " + " " * 41, first="  "))
+            if c.result is None:  # the screen's verdict, in one line below the table
                 continue
             verdict = "NAMED: " + c.p_words() if c.significant else c.why_not
             lines.extend(_wrap(f"{c.effect:<22}{_pct(c.result.fit['ay']):>8}{_pct(c.result.fit['r']):>8}   "
                                f"{verdict}", indent="  " + " " * 41, first="  "))
+        screened = _screened_line(d)
+        if screened:
+            lines.extend(_wrap(screened, indent="    ", first="  "))
         best = d.best
         if best is not None:
             same = [c.effect for c in d.same_symptom]
