@@ -21,17 +21,18 @@ def record_run(run, path, start_ns=1_700_000_000_000_000_000):
 def expected_counts(run, t_virtual_us, pin, board):
     st = run.stimulus
     # the voltage at the sample's instant, interpolated between stimulus rows as the board's
-    # ADC sees it (integer arithmetic, floor division, exactly as the simulated board does)
+    # ADC sees it (integer arithmetic in 1e-6 of 0.1 mV, rounded once by the converter,
+    # exactly as the simulated board does)
     a = np.asarray(t_virtual_us, np.int64) * st.fs_sig
     row = a // 1_000_000
     vc = st.volts_counts(pin).astype(np.int64)  # 0.1 mV
     last = row >= st.n_rows - 1
     r0 = np.minimum(row, st.n_rows - 1)
     r1 = np.minimum(row + 1, st.n_rows - 1)
-    v = np.where(last, vc[r0], vc[r0] + (vc[r1] - vc[r0]) * (a % 1_000_000) // 1_000_000)
+    v = np.where(last, vc[r0] * 1_000_000, vc[r0] * 1_000_000 + (vc[r1] - vc[r0]) * (a % 1_000_000))
     if board == "pico":
-        return np.minimum((v * 4095 + 16500) // 33000, 4095)
-    return np.clip(v, 1500, 24500) * 100 // 1000
+        return np.minimum((v * 4095 + 16_500_000_000) // 33_000_000_000, 4095)
+    return np.clip((v + 5000) // 10000, 150_000, 2_450_000) // 1000
 
 
 @pytest.mark.parametrize("board", ["pico", "esp32"])

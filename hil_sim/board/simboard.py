@@ -32,12 +32,11 @@
 # runs its sampler interrupt under micropython.heap_lock() through this code.
 import json
 import os
-import struct
-from array import array
 
 import utime
 
 import rp2040_hw
+import stimfile
 
 _MASK30 = 0x3FFFFFFF
 _FAR = 1 << 62
@@ -55,35 +54,12 @@ class WatchdogReset(Exception):
     pass
 
 
-class _Stim:
-    def __init__(self, path):
-        with open(path, "rb") as f:
-            if f.read(8) != b"STIDSIM2":
-                raise OSError("not a stid stimulus file: " + path)
-            (hlen,) = struct.unpack("<I", f.read(4))
-            h = json.loads(f.read(hlen))
-            self.h = h
-            self.board = h["board"]
-            self.fs = h["fs_sig"]
-            self.n_rows = h["n_rows"]
-            self.n_cols = len(h["cols"])
-            self.cols = {int(k): v for k, v in h["cols"].items()}
-            self.volts = array("H", bytearray(2 * self.n_rows * self.n_cols))
-            f.readinto(self.volts)
-            self.steer = array("H", bytearray(2 * h["n_steer"]))
-            f.readinto(self.steer)
-            self.steer_rise = array("I", bytearray(4 * h["n_steer"]))
-            f.readinto(self.steer_rise)
-            self.hall = array("I", bytearray(4 * h["n_hall"]))
-            f.readinto(self.hall)
-            self.hall_pin = bytearray(h["n_hall"])  # pin of each hall edge
-            f.readinto(self.hall_pin)
-        self.duration_us = h["duration_us"]
-
-
 class Board:
     def __init__(self, path, realtime=False):
-        s = _Stim(path)
+        # board behaviour; STID_SIM_BOARD (JSON) overrides the defaults in _BOARDS
+        extra = os.getenv("STID_SIM_BOARD")
+        extra = json.loads(extra) if extra else {}
+        s = stimfile.Stim(path, rows=extra.get("stim_rows"))
         self.stim = s
         self.now = 0  # virtual us since start
         self.start_ticks = s.h.get("start_ticks", 0)
@@ -101,6 +77,10 @@ class Board:
         self.steer_k = 0
         self.steer_high = False
         self.hall_i = 0
+        # the next edge of each, kept up to date as they fire (looked up once per edge,
+        # not on every pass of the event loop: the stimulus is read through a window)
+        self.t_steer = self._next_steer()
+        self.t_hall = self._next_hall()
         # every key present up front: a first insert while firing events would allocate
         self.pin_level[self.steer_pin] = 0
         for pin in s.h["hall_pins"]:
@@ -109,11 +89,8 @@ class Board:
         self.stall_i = 0
         self.row = -1
         self.adc_esp32 = s.board == "esp32"
-        # board behaviour; STID_SIM_BOARD (JSON) overrides the defaults above
         opts = dict(_BOARDS[s.board])
-        extra = os.getenv("STID_SIM_BOARD")
-        if extra:
-            opts.update(json.loads(extra))
+        opts.update(extra)
         self.opts = opts
         self.micropython = tuple(opts["micropython"])
         self.set_baud(opts["baud"])
@@ -210,17 +187,17 @@ class Board:
             self.rp2040 = rp2040_hw.Rp2040(self)
 
     def _next_steer(self):
-        if self.steer_k >= len(self.stim.steer):
+        if self.steer_k >= self.stim.n_steer:
             return _FAR
-        t = self.stim.steer_rise[self.steer_k]
+        t = self.stim.steer_rise.at(self.steer_k)
         if self.steer_high:
-            t += self.stim.steer[self.steer_k]
+            t += self.stim.steer.at(self.steer_k)
         return t
 
     def _next_hall(self):
-        if self.hall_i >= len(self.stim.hall):
+        if self.hall_i >= self.stim.n_hall:
             return _FAR
-        return self.stim.hall[self.hall_i]
+        return self.stim.hall.at(self.hall_i)
 
     def _pace(self, t):
         if self.realtime:
@@ -233,8 +210,8 @@ class Board:
     def advance_to(self, t_end):
         # Fire every event due up to t_end in time order, then set the clock.
         while True:
-            ts = self._next_steer()
-            th = self._next_hall()
+            ts = self.t_steer
+            th = self.t_hall
             tt = self.timer_due
             t = ts
             if th < t:
@@ -258,13 +235,16 @@ class Board:
                 if self.steer_high:
                     self.steer_high = False
                     self.steer_k += 1
+                    self.t_steer = self._next_steer()
                     self._edge(self.steer_pin, 0)
                 else:
                     self.steer_high = True
+                    self.t_steer = self._next_steer()
                     self._edge(self.steer_pin, 1)
             else:
-                pin = self.stim.hall_pin[self.hall_i]
+                pin = self.stim.hall_pin.at(self.hall_i)
                 self.hall_i += 1
+                self.t_hall = self._next_hall()
                 self._edge(pin, 0)
                 self.pin_level[pin] = 1
         if t_end > self.now:
@@ -290,10 +270,10 @@ class Board:
     def idle(self):
         # Wait for the next interrupt, as machine.idle() does on the car.
         t = self.timer_due
-        ts = self._next_steer()
+        ts = self.t_steer
         if ts < t:
             t = ts
-        th = self._next_hall()
+        th = self.t_hall
         if th < t:
             t = th
         if self.sched_n:
@@ -309,18 +289,22 @@ class Board:
         self.run_scheduled()
 
     # -- analog ---------------------------------------------------------------
-    def volts_01mv(self, pin_no):
-        # the voltage at this instant, interpolated between the stimulus rows (a held row
-        # would make a sample read between rows up to one row period, 200 us, old)
+    def volts_fine(self, pin_no):
+        # the voltage at this instant [1e-6 of 0.1 mV], interpolated between the stimulus rows
+        # (a held row would make a sample read between rows up to one row period, 200 us,
+        # old). Not rounded here: the converter rounds once; flooring to whole 0.1 mV first
+        # leaves an error that follows the sign of the slope, i.e. a timing error
         s = self.stim
         a = self.now * s.fs
         row = a // 1000000
         col = s.cols[pin_no]
         if row >= s.n_rows - 1:
-            return s.volts[(s.n_rows - 1) * s.n_cols + col]
-        v0 = s.volts[row * s.n_cols + col]
-        v1 = s.volts[(row + 1) * s.n_cols + col]
-        return v0 + (v1 - v0) * (a % 1000000) // 1000000
+            return s.volt(s.n_rows - 1, col) * 1000000
+        w = s.volts
+        i = w.cover(row, row + 1) * s.n_cols + col
+        v0 = w.buf[i]
+        v1 = w.buf[i + s.n_cols]
+        return v0 * 1000000 + (v1 - v0) * (a % 1000000)
 
     def _adc_fault(self):
         if self.now >= self.adc_fault_at:  # a one-off read error (loose connector, EMI)
@@ -332,20 +316,20 @@ class Board:
             raise rp2040_hw.HwError("ADC.read_u16 while the ADC free-runs (START_MANY): it would select "
                                     "another input and break the round robin")
         self._adc_fault()
-        v = self.volts_01mv(pin_no)
-        c = (v * 4095 + 16500) // 33000  # RP2040: 12 bits over 0..3.3 V
+        v = self.volts_fine(pin_no)
+        c = (v * 4095 + 16500000000) // 33000000000  # RP2040: 12 bits over 0..3.3 V, rounded once
         if c > 4095:
             c = 4095
         return (c << 4) | (c >> 8)  # as rp2's read_u16 scales 12 bits to 16
 
     def read_uv(self, pin_no):
         self._adc_fault()
-        v = self.volts_01mv(pin_no)  # ESP32, 11 dB: linear 0.15..2.45 V only
-        if v < 1500:
-            v = 1500
-        if v > 24500:
-            v = 24500
-        return v * 100
+        v = (self.volts_fine(pin_no) + 5000) // 10000  # uV; ESP32, 11 dB: linear 0.15..2.45 V only
+        if v < 150000:
+            v = 150000
+        if v > 2450000:
+            v = 2450000
+        return v
 
     # -- output: throughput and stalls -----------------------------------------
     def stall_if_due(self):
@@ -406,11 +390,10 @@ def board():
         if not path:
             raise OSError("STID_SIM_STIMULUS is not set: the simulated board needs a stimulus file")
         BOARD = Board(path, realtime=os.getenv("STID_SIM_REALTIME") == "1")
-        # Free the import-time garbage now. MicroPython's allocator is first-fit from the
-        # lowest free block: with only small holes below the stimulus arrays, every call
-        # that puts its frame on the heap scanned the allocation table past them (time
-        # per call grew with the stimulus: a 4-minute run took 13-17 s instead of 3.7 s,
-        # gc_alloc 59% of it). Collected, the space below them serves those allocations.
+        # Free the import-time garbage now, so the firmware's own allocations start from a
+        # clean heap (MicroPython's allocator is first-fit from the lowest free block: when the
+        # board still held its whole stimulus, small holes below those arrays made every call
+        # that puts its frame on the heap scan past them, 13-17 s instead of 3.7 s for 4 min).
         import gc
         gc.collect()
     return BOARD

@@ -25,10 +25,11 @@ def expected(pin, t_ticks):
     t = (t_ticks - b.start_ticks) & M30
     a = t * s.fs
     row = a // 1000000
-    v0 = s.volts[row * s.n_cols + s.cols[pin]]
-    v1 = s.volts[(row + 1) * s.n_cols + s.cols[pin]]
-    v = v0 + (v1 - v0) * (a % 1000000) // 1000000  # the signal between stimulus rows
-    c = (v * 4095 + 16500) // 33000
+    v0 = s.volt(row, s.cols[pin])
+    v1 = s.volt(row + 1, s.cols[pin])
+    # the signal between stimulus rows, in 1e-6 of 0.1 mV, rounded once by the converter
+    v = v0 * 1000000 + (v1 - v0) * (a % 1000000)
+    c = (v * 4095 + 16500000000) // 33000000000
     return 4095 if c > 4095 else c
 
 
