@@ -36,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="after an unplug, wait at most this many seconds for the port (default: forever)")
     ap.add_argument("--hello-from", metavar="EARLIER.mcap",
                     help="if no HELLO gets through in this run, take the configuration from this earlier log of "
-                         "the same board (the file says so)")
+                         "the same board (the file says so; a vehicle file cannot stand in: it does not hold "
+                         "the board's ADC and pin configuration)")
     ap.add_argument("--repair", metavar="FILE", help="rewrite a cut-short MCAP file into a complete one, then exit")
     ap.add_argument("--repair-output", metavar="OUT", help="where --repair writes (default FILE.repaired.mcap)")
     ap.add_argument("--status", action=argparse.BooleanOptionalAction, default=None,
@@ -54,6 +55,10 @@ def main(argv=None) -> int:
             return repair_cli(args.repair, args.repair_output, args.hello_from)
         if not args.port:
             ap.error("give the serial port, e.g. stid-log /dev/ttyUSB0 (or --repair FILE)")
+        if args.hello_from:  # refused now, not after the run it was meant to rescue
+            from host.hello_supply import check_source
+
+            check_source(args.hello_from)
         from host.logger import LogOptions, Logger, summary_line
 
         stats = Logger(LogOptions(port=args.port, output=args.output, duration=args.duration, baud=args.baud,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from mcap.writer import CompressionType, Writer
 
-from host.hello_supply import hello_from_file
+from host.hello_supply import check_source, hello_from_file
 from host.mcap_log import PROFILE, SCHEMAS, TOPICS
 from host.mcap_read import REPAIR_METADATA, LogReadError, read_log, scan_log
 
@@ -100,6 +100,8 @@ def _earlier_damage(sc) -> list:
 def repair_cli(path: str, output: str | None, hello_from: str | None = None) -> int:
     src = Path(path)
     dst = Path(output) if output else src.with_suffix(".repaired.mcap")
+    if hello_from is not None:
+        check_source(hello_from)
     try:
         counts = repair(src, dst, hello_from)
     except OSError as e:

@@ -1,0 +1,62 @@
+"""--hello-from: what can stand in for a HELLO that never got through. An earlier log of the
+same board can (tests/test_log_port.py records one); a vehicle file cannot (it does not hold
+the board's ADC scale, tick modulus or pin configuration), and saying so must happen at
+once, in one line, before a run is recorded that it was meant to rescue."""
+
+import subprocess
+
+import pytest
+from conftest import REPO, tool
+
+from host.errors import HostError
+from host.hello_supply import MCAP_MAGIC, check_source
+
+VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
+
+
+def _one_error_line(err: str, prog: str) -> str:
+    lines = [x for x in err.strip().splitlines() if x.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"{prog}: error") and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_stid_log_refuses_a_vehicle_file_before_recording(tmp_path):
+    out = tmp_path / "run.mcap"
+    # the port is never opened: the refusal comes first
+    r = subprocess.run([tool("stid-log"), str(tmp_path / "no-such-port"), "-o", str(out), "--hello-from",
+                        str(VEHICLE)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    line = _one_error_line(r.stderr, "stid-log")
+    assert "vehicle file" in line and "EARLIER.mcap" in line and "ADC" in line
+    assert not out.exists()
+
+
+def test_stid_repair_refuses_a_vehicle_file_and_writes_nothing(tmp_path):
+    bare = tmp_path / "bare.mcap"
+    bare.write_bytes(MCAP_MAGIC + b"\x00" * 64)
+    fixed = tmp_path / "fixed.mcap"
+    r = subprocess.run([tool("stid"), "repair", str(bare), "-o", str(fixed), "--hello-from", str(VEHICLE)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "vehicle file" in _one_error_line(r.stderr, "stid repair")
+    assert not fixed.exists()
+
+
+@pytest.mark.parametrize("content, says", [
+    (None, "No such file"),
+    (b"t,steer,ay\n0,0,0\n", "is not an MCAP log"),
+    (b'mass = 9.3\na = 0.23\nb = 0.29\nname = "mine"\n', "is a vehicle file"),
+])
+def test_check_source_names_what_is_wrong(tmp_path, content, says):
+    path = tmp_path / "donor"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(HostError) as e:
+        check_source(path)
+    assert says in str(e.value) and "\n" not in str(e.value)
+
+
+def test_check_source_accepts_an_mcap_log(tmp_path):
+    path = tmp_path / "earlier.mcap"
+    path.write_bytes(MCAP_MAGIC + b"\x00" * 64)
+    assert check_source(path) == path
