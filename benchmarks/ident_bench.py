@@ -108,7 +108,8 @@ def diagnose_time(d: Path, quick: bool) -> dict:
     wall, cpu = whole_process([str(bindir / "stid"), "diagnose", *map(str, make_runs(d, ("actuator_lag",))),
                                "--vehicle", str(VEHICLE)])
     return {"diagnose_s": t, "cli_diagnose_s": wall, "cli_diagnose_cpu_s": cpu,
-            "candidates": len(rounds[0].candidates), "found": rounds[0].best.effect}
+            "candidates": len(rounds[0].candidates), "found": rounds[0].best.effect,
+            "fully_fitted": sum(c.result is not None for c in rounds[0].candidates)}
 
 
 def scaling(d: Path, quick: bool) -> dict:
