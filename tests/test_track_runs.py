@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy import signal
 from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicSpline
 
 from stid.models.model import Model
 from stid.vehicle_file import Vehicle
@@ -37,8 +38,12 @@ def bicycle_run(vx_of_t, T=40.0, fs=200.0, seed=0, steer_rms_deg=3.0, bw=3.0, st
     def forces(vy, r, d, v):
         return Cf * (d - (vy + A * r) / v), Cr * (-(vy - B * r) / v)
 
+    # between samples the steer is the smooth band-limited signal the samples were taken from
+    # (a cubic spline through them), as a prefiltered log's is, not the chords between them
+    steer_of_t = CubicSpline(t, steer)
+
     def f(tt, x):
-        d, v = np.interp(tt, t, steer), np.interp(tt, t, vx)
+        d, v = float(steer_of_t(tt)), np.interp(tt, t, vx)
         Ff, Fr = forces(x[0], x[1], d, v)
         if geometry:
             Ff = Ff * np.cos(d)

@@ -248,6 +248,15 @@ class LpvSimulator:
         except np.linalg.LinAlgError:  # a pole at zero (no steady state): start at rest
             self.x_unit = np.zeros_like(B0)
 
+    def feedthrough(self, u: np.ndarray) -> np.ndarray:
+        """D(v_k) u[k] alone: the outputs' direct part of an input (n_t, m) or (n_t,)."""
+        u = np.asarray(u, float)
+        if u.ndim == 1:
+            u = u[:, None]
+        w = self.w[:, None, None]
+        D = (1.0 - w) * self.D[self.idx] + w * self.D[self.idx + 1]
+        return np.einsum("toi,ti->to", D, u)
+
     def __call__(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, float)
         if u.ndim == 1:

@@ -9,6 +9,7 @@ import numpy as np
 from stid.errors import InputError
 from stid.models.bicycle import BASE_PARAMS, bicycle
 from stid.models.effect import Context, get_effect
+from stid.models.linsys import foh_input
 from stid.models.params import Param
 
 BASES = ("bicycle",)  # "greybox" (study 2) is fitted by stid.fit.greybox_fit
@@ -170,15 +171,22 @@ class Model:
         for e in self._ordered:  # static steer maps (linkage geometry): exact, on the sampled signal
             if e.maps_steer:
                 steer = e.steer_map(np.asarray(steer, float), p, ctx)
+        steer = np.asarray(steer, float)
+        # the simulators hold the input first-order: the states are driven by samples whose
+        # chords carry the band-limited signal (linsys.foh_input); an output that feeds the
+        # steer straight through (no sensor filter) takes the sample itself
+        held = foh_input(steer)
         if not self.nonlinear:
-            return self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)(steer)
+            sim = self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)
+            return sim(held) + sim.feedthrough(steer - held)
         outs = list(outputs)
         n = len(steer)
         # the steer's part is fixed; each pass only needs the slip angles' response
         # to the force correction
         sim = self.simulator(p, vx, dt, outs + ["alpha_f", "alpha_r"], ["delta", "dFf", "dFr"], sensors)
         zeros = np.zeros(n)
-        base = sim(np.column_stack([steer, zeros, zeros]))
+        base = sim(np.column_stack([held, zeros, zeros])) + sim.feedthrough(
+            np.column_stack([steer - held, zeros, zeros]))
         no = len(outs)
 
         def slip_of_force(f):
