@@ -66,19 +66,37 @@ def test_false_positive_rate_over_seeds(simdir, rc_vehicle):
     assert flagged / n <= 0.05
 
 
-def test_a_short_servo_lag_at_one_speed_is_reported_as_not_separable_from_relaxation(simdir, rc_vehicle):
-    """15 ms of servo lag at one speed looks like tyre relaxation (sigma/vx ~ 15 ms): the tool
-    must say it cannot tell them apart and which run would, and must not peel past it."""
+def test_a_short_servo_lag_at_one_speed_is_told_from_relaxation_by_the_data(simdir, rc_vehicle):
+    """15 ms of servo lag at one speed looks like tyre relaxation (sigma/vx ~ 15 ms), but not
+    quite: a servo lag delays the front axle's input only, relaxation both axles' forces, and
+    40 s of random steer show it (relaxation stays short of the floor in r). The lag is named,
+    relaxation is the same symptom, and the explanation says the evidence is one speed."""
     from hil_sim.vehicle import CarParams
 
     path = sim_run(simdir, "random_steer", ("actuator_lag",), seed=7, speed=6.0, car=CarParams(tau_steer=0.015))
-    rounds = diagnose(load_runs([path], rc_vehicle), rc_vehicle, "bicycle", peel=True)
-    best = rounds[0].best
-    assert best.effect in ("actuator_lag", "tyre_relaxation")
-    other = "tyre_relaxation" if best.effect == "actuator_lag" else "actuator_lag"
-    assert other in best.separable_from
-    assert "second speed" in best.explanation and "one speed only" in best.explanation
-    assert len(rounds) == 1  # no guessing: peeling stops at an undecidable choice
+    (d,) = diagnose(load_runs([path], rc_vehicle), rc_vehicle, "bicycle")
+    table = [(c.effect, round(c.lr), c.why_not) for c in d.candidates]
+    assert d.best is not None and d.best.effect == "actuator_lag", table
+    assert not d.best.separable_from, table
+    assert "one speed only" in d.best.explanation
+
+
+def test_candidates_are_not_separable_only_when_chance_could_give_their_likelihood_ratio():
+    """Two candidates fitted from the same base: the difference of their LR statistics is
+    the LR between them. Within the chi-square critical value they cannot be told apart,
+    whatever their fit gains; far beyond it they can, even when the runner-up gains 83% of
+    the winner's points (a servo lag on a hidden sensor delay)."""
+    from scipy.special import chdtri
+
+    from stid.diagnose import Candidate, _indistinct
+
+    level = 0.01 / 9
+    crit = chdtri(1, level)
+    top = Candidate("sensor_delay", lr=7000.0, level=level, gain={"ay": 31.0, "r": 10.0})
+    close = Candidate("actuator_lag", lr=7000.0 - 0.5 * crit, level=level, gain={"ay": 5.0, "r": 1.0})
+    far = Candidate("actuator_lag", lr=7000.0 - 4964.0, level=level, gain={"ay": 25.8, "r": 8.3})
+    assert _indistinct(top, close)
+    assert not _indistinct(top, far)
 
 
 def test_servo_lag_at_two_speeds_is_named_without_doubt(simdir, rc_vehicle):

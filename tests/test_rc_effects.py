@@ -164,6 +164,9 @@ def test_hidden_rc_effect_is_named_first_and_the_error_falls_to_the_floor(simdir
     table = [(c.effect, c.significant, round(c.lr), c.result and c.result.fit) for c in first.candidates]
     assert first.candidates[0].effect == effect, table
     assert first.best is not None and first.best.effect == effect, table
+    # the data tell it from its look-alikes (a servo lag filters, a delay does not): named
+    # without doubt, the others are the same symptom
+    assert not first.best.separable_from, first.best.separable_from
     fixed = first.best.result
     for o in ("ay", "r"):
         assert fixed.fit[o] > first.floor[o] - 0.5, (o, fixed.fit, first.floor)

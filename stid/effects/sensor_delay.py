@@ -48,9 +48,10 @@ class SensorDelay(Effect):
     signature = ("residuals of yaw rate and lateral acceleration follow the steer by the same time at every "
                  "speed; the phase error grows linearly with frequency while the gain is right (a servo lag "
                  "also lowers the gain at high frequency)")
-    confused_with = {"actuator_lag": "drive a chirp or a sharp step steer: a servo lag rounds the step and "
-                                     "lowers the gain at high frequency, a pure delay shifts the response "
-                                     "unchanged"}
+    confused_with = {"actuator_lag": "steer faster than the servo's corner frequency 1/(2 pi tau_steer) (2.7 Hz "
+                                     "for 60 ms): a chirp to 5 Hz, sharp steps or random steer to 4 Hz. A servo "
+                                     "lag rounds a step and lowers the gain above that frequency, a pure delay "
+                                     "shifts the response unchanged"}
 
     def apply(self, sys, p, ctx):
         d = p["delay_s"]
