@@ -8,13 +8,15 @@ the logger recorded for the port (``stid.port`` metadata; on an RP2040 it is the
 flash's unique id) must match; where neither file has one, the caller is warned that
 it could not be checked.
 
-A vehicle file cannot stand in (issue 12 asked whether it could). A HELLO declares what
-only the board's firmware knows: the ADC's scale and reference (12-bit counts of 3.3 V on
-an RP2040, millivolts on an ESP32), the tick modulus, which pin carries which sensor and
-which hall which wheel, and the board's uid. A vehicle file describes the car (mass,
-axles, steering, wheel radius); values typed there for the board would be a guess that no
-check could catch, and a wrong guess converts every sample silently wrong. So
-``--hello-from vehicle.toml`` is refused with one line, before anything is recorded.
+A vehicle file can stand in only where it declares the board: a ``[board]`` table that
+holds the HELLO's own keys (docs/hello_in_vehicle_file.md). A HELLO declares what only the
+board's firmware knows: the ADC's scale and reference (12-bit counts of 3.3 V on an
+RP2040, microvolts on an ESP32), the tick modulus, which channel is which sensor (ratiometric
+or absolute output, its bandwidth) and which hall which wheel. The rest of a vehicle file
+describes the car, and nothing in it could stand for those, so a vehicle file without a
+complete ``[board]`` is refused with one line (naming what is missing) before anything is
+recorded. A declared ``[board]`` is used with a warning: no check can catch a wrong value
+there, and a wrong value converts every sample wrong.
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ MCAP_MAGIC = b"\x89MCAP"
 
 def check_source(path) -> Path:
     """Refuse at once (before a run is recorded) a --hello-from that cannot supply a HELLO:
-    a missing file, a vehicle file, anything that is not an MCAP log."""
+    a missing file, a vehicle file without a complete [board] table, anything else that is
+    not an MCAP log."""
     path = Path(path)
     try:
         with open(path, "rb") as f:
@@ -39,23 +42,49 @@ def check_source(path) -> Path:
             from None
     if head == MCAP_MAGIC:
         return path
-    if _is_toml(path):
-        raise HostError(f"--hello-from {path} is a vehicle file: it describes the car, not what only the board's "
-                        "HELLO declares (ADC scale and reference, tick modulus, which pin is which sensor and "
-                        "wheel, uid), and a guess at those would convert every sample wrong; give an earlier "
-                        "log of the same board (--hello-from EARLIER.mcap)")
+    doc = _toml(path)
+    if doc is not None:
+        _board_of(path, doc)  # refuses, naming what is missing
+        return path
     raise HostError(f"--hello-from {path} is not an MCAP log; give an earlier log (.mcap) of the same board")
 
 
-def _is_toml(path: Path) -> bool:
+# What a HELLO must declare for its samples to be converted (host/units.py, stid/load.py)
+BOARD_KEYS = {"proto": "the protocol version", "rate_hz": "the sample rate [Hz]",
+              "mod": "the tick modulus (1073741824 for MicroPython's ticks_us)",
+              "adc": "the ADC: {bits, vref, unit}"}
+ADC_KEYS = ("bits", "vref", "unit")
+
+
+def _board_of(path: Path, doc: dict) -> dict:
+    board = doc.get("board")
+    if not isinstance(board, dict):
+        raise HostError(f"--hello-from {path} is a vehicle file without a [board] table: it describes the car, "
+                        "not what only the board's HELLO declares (ADC scale and reference, tick modulus, which "
+                        "channel is which sensor and wheel); declare the board there (docs/hello_in_vehicle_file.md) "
+                        "or give an earlier log of the same board (--hello-from EARLIER.mcap)")
+    missing = [f"{k} ({what})" for k, what in BOARD_KEYS.items() if k not in board]
+    adc = board.get("adc")
+    if isinstance(adc, dict):
+        missing += [f"adc.{k}" for k in ADC_KEYS if k not in adc]
+    channels = board.get("channels")  # optional (protocol 2 had none): the sensors' bandwidths
+    if channels is not None:
+        missing += [f"channels.{k}" for k in ("ax", "ay", "yaw")
+                    if not isinstance(channels, dict) or not isinstance(channels.get(k), dict)]
+    if missing:
+        raise HostError(f"--hello-from {path}: its [board] table lacks {'; '.join(missing)} "
+                        "(docs/hello_in_vehicle_file.md); or give an earlier log of the same board")
+    return board
+
+
+def _toml(path: Path) -> dict | None:
     try:
         if path.stat().st_size > 1 << 20:  # vehicle files are a few lines; a big file is data
-            return False
+            return None
         with open(path, "rb") as f:
-            tomllib.load(f)
+            return tomllib.load(f)
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return False
-    return True
+        return None
 
 
 def hello_from_file(path, port_info: dict | None) -> tuple[dict, str]:
@@ -63,6 +92,12 @@ def hello_from_file(path, port_info: dict | None) -> tuple[dict, str]:
     from host.mcap_read import read_log
 
     path = check_source(path)
+    doc = _toml(path)
+    if doc is not None:
+        hello = dict(_board_of(path, doc), supplied_from=f"{path} [board]")
+        return hello, (f"no HELLO was received; its configuration is taken from the [board] table of {path}, "
+                       "as declared there: nothing can check it against the board, and a wrong ADC scale, tick "
+                       "modulus or channel converts every sample wrong (marked so in the file)")
     donor = read_log(path)
     if not donor.hello:
         raise HostError(f"{path} has no HELLO either; give a log of the same board that has one")

@@ -34,10 +34,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="give up if no valid frame arrives within this many seconds (default 10)")
     ap.add_argument("--reconnect-timeout", type=float, default=None,
                     help="after an unplug, wait at most this many seconds for the port (default: forever)")
-    ap.add_argument("--hello-from", metavar="EARLIER.mcap",
+    ap.add_argument("--hello-from", metavar="EARLIER.mcap|V.toml",
                     help="if no HELLO gets through in this run, take the configuration from this earlier log of "
-                         "the same board (the file says so; a vehicle file cannot stand in: it does not hold "
-                         "the board's ADC and pin configuration)")
+                         "the same board, or from the [board] table a vehicle file declares "
+                         "(docs/hello_in_vehicle_file.md); the file says so")
     ap.add_argument("--repair", metavar="FILE", help="rewrite a cut-short MCAP file into a complete one, then exit")
     ap.add_argument("--repair-output", metavar="OUT", help="where --repair writes (default FILE.repaired.mcap)")
     ap.add_argument("--status", action=argparse.BooleanOptionalAction, default=None,

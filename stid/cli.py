@@ -364,8 +364,9 @@ def build_parser() -> argparse.ArgumentParser:
                                       "checks is left out and named)")
     p.add_argument("file")
     p.add_argument("-o", "--output", help="output path (default: FILE with .repaired.mcap)")
-    p.add_argument("--hello-from", metavar="EARLIER.mcap",
-                   help="a log with no HELLO: take the configuration from an earlier log of the same board")
+    p.add_argument("--hello-from", metavar="EARLIER.mcap|V.toml",
+                   help="a log with no HELLO: take the configuration from an earlier log of the same board, or "
+                        "from the [board] table a vehicle file declares (docs/hello_in_vehicle_file.md)")
     p.set_defaults(func=_cmd_repair)
 
     for p in sub.choices.values():

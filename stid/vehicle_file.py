@@ -85,6 +85,7 @@ TABLES = {
     "sensors": ("accel_offset", "gyro_zero_v", "gyro_v_per_dps", "mount_roll", "mount_pitch",
                 "accel_bandwidth_hz", "gyro_bandwidth_hz"),
     "params": None,  # model parameter names: checked against the models (_check_params)
+    "board": None,  # the board's HELLO, declared for a log none reached (host/hello_supply.py checks it)
 }
 PARAM_SPEC_KEYS = ("init", "min", "max")
 _NONNEGATIVE = ("accel_bandwidth_hz", "gyro_bandwidth_hz")  # Hz; 0 = no filter

@@ -1,7 +1,8 @@
 """--hello-from: what can stand in for a HELLO that never got through. An earlier log of the
-same board can (tests/test_log_port.py records one); a vehicle file cannot (it does not hold
-the board's ADC scale, tick modulus or pin configuration), and saying so must happen at
-once, in one line, before a run is recorded that it was meant to rescue."""
+same board can (tests/test_log_port.py records one), and so can a vehicle file whose [board]
+table declares the HELLO (test_log_port too); a vehicle file without one cannot (the car's
+description holds no ADC scale, tick modulus or pin configuration), and saying so must
+happen at once, in one line, before a run is recorded that it was meant to rescue."""
 
 import subprocess
 
@@ -60,3 +61,15 @@ def test_check_source_accepts_an_mcap_log(tmp_path):
     path = tmp_path / "earlier.mcap"
     path.write_bytes(MCAP_MAGIC + b"\x00" * 64)
     assert check_source(path) == path
+
+
+def test_a_board_table_must_declare_what_conversion_needs(tmp_path):
+    """A vehicle file's [board] stands in for a HELLO only when complete: the refusal names
+    each missing key (here the ADC reference and the tick modulus)."""
+    v = tmp_path / "car.toml"
+    v.write_text('name = "mine"\nmass = 9.3\na = 0.23\nb = 0.29\n\n[board]\nproto = 3\nrate_hz = 500\n'
+                 'adc = {bits = 12, unit = "count"}\n')
+    with pytest.raises(HostError) as e:
+        check_source(v)
+    msg = str(e.value)
+    assert "adc.vref" in msg and "mod (" in msg and "\n" not in msg

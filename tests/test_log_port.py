@@ -14,6 +14,7 @@ import threading
 import time
 import tty
 
+import numpy as np
 import pytest
 
 from conftest import tool
@@ -155,6 +156,29 @@ def test_a_run_without_hello_exits_non_zero_and_a_later_supply_makes_it_usable(t
     log = read_log(fixed)
     assert log.hello["supplied_from"] == str(tmp_path / "earlier.mcap")
     assert log.hello["uid"] == read_log(tmp_path / "earlier.mcap").hello["uid"]
+    # with no earlier log: the HELLO declared in the vehicle file's [board] table, written here
+    # from what the board sent; the run converts to the same SI samples
+    from stid.load import load_runs
+    from stid.vehicle_file import load_vehicle
+
+    sent = read_log(tmp_path / "earlier.mcap").hello
+    car = tmp_path / "car.toml"
+    car.write_text('name = "circle car"\nmass = 9.31\na = 0.2326\nb = 0.2874\n\n'
+                   '[steering]\ncenter_us = 1500.0\nus_per_rad = 1145.9\n\n'
+                   '[wheel]\nradius = 0.045\npulses_per_rev = 1\n\n'
+                   f'[board]\nproto = {sent["proto"]}\nrate_hz = {sent["rate_hz"]}\nmod = {sent["mod"]}\n'
+                   f'adc = {{bits = {sent["adc"]["bits"]}, vref = {sent["adc"]["vref"]}, unit = "count"}}\n'
+                   'wheels = [{pulses_per_rev = 1, wheel = "rl"}]\n')
+    from_car = tmp_path / "from_car.mcap"
+    r = subprocess.run([tool("stid"), "repair", str(tmp_path / "bare.mcap"), "-o", str(from_car), "--hello-from",
+                        str(car)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "[board] table" in r.stderr and "nothing can check it" in r.stderr
+    assert read_log(from_car).hello["supplied_from"] == f"{car} [board]"
+    vehicle = load_vehicle(car)
+    (a,), (b,) = load_runs([fixed], vehicle), load_runs([from_car], vehicle)
+    for name in ("steer", "ay", "r", "vx"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
 
 
 def test_frames_of_a_newer_protocol_say_update_stid(tmp_path, feeder):
