@@ -49,7 +49,14 @@ def foh_input(u: np.ndarray) -> np.ndarray:
     shape of an inertia and of a servo lag. At the fit rate (h = 4 ms) it cost Iz
     -0.21% on exact single-track data (tests/test_servo_lag.py). Taking a twelfth of
     the second difference off each sample restores the gain to O(h^4) (-0.005%).
-    The end samples are kept (no neighbour on one side)."""
+    The end samples are kept (no neighbour on one side).
+
+    Exact for dynamics slower than the sample rate, which is what the chords' integral
+    feeds. A state far faster than it (a lag of tau -> 0) follows the input pointwise and
+    sees the corrected sample instead of the true one, off by a twelfth of the second
+    difference (~5e-4 of 3 Hz steer at 250 Hz): the zero limit of such an effect then
+    differs from the model without it by that much (tests/test_effects_contract.py).
+    A cubic hold in the discretisation would be exact for both; not done yet."""
     u = np.asarray(u, float)
     if u.ndim != 1 or len(u) < 3:
         return u
