@@ -4,11 +4,10 @@
 # usage: printf 'xxSTID-ESCAPE' | micropython mp_escape_live.py   (hil_sim/board first on MICROPYPATH)
 import sys
 
-import micropython
 
 import app
 import simboard
-from mptest import check, done
+from mptest import check, done, run_heap_locked
 
 b = simboard.board()
 
@@ -24,19 +23,7 @@ check(fw._poll is not None, "stdin is polled")
 
 
 def drive(steps):
-    micropython.heap_lock()
-    try:
-        n = 0
-        while n < steps and not fw.escaped:
-            b.idle()
-            fw.pump()
-            fw.service()
-            n += 1
-        ok = True
-    except MemoryError:
-        ok = False
-    micropython.heap_unlock()
-    return ok
+    return run_heap_locked(b, fw, steps)
 
 
 check(drive(2000), "main loop with the escape check allocates nothing (heap locked)")

@@ -6,7 +6,7 @@ import micropython
 
 import app
 import simboard
-from mptest import check, done
+from mptest import check, done, run_heap_locked
 
 
 class Sink:
@@ -26,18 +26,7 @@ fw.start()
 
 
 def drive(steps):
-    # In a function: a new module-level name would itself allocate (globals dict).
-    micropython.heap_lock()
-    try:
-        for _ in range(steps):  # timer, pulse IRQs and framing, as on the car
-            b.idle()
-            fw.pump()
-            fw.service()
-        result = True
-    except MemoryError:
-        result = False
-    micropython.heap_unlock()
-    return result
+    return run_heap_locked(b, fw, steps)
 
 
 check(drive(2000), "sampler + pump + service allocate nothing (heap locked)")

@@ -5,11 +5,10 @@
 import os
 import struct
 
-import micropython
 
 import app
 import simboard
-from mptest import check, done
+from mptest import check, done, run_heap_locked
 
 b = simboard.board()
 s = b.stim
@@ -26,17 +25,7 @@ fw.start()
 
 
 def drive(steps):
-    micropython.heap_lock()
-    try:
-        for _ in range(steps):
-            b.idle()
-            fw.pump()
-            fw.service()
-        result = True
-    except MemoryError:
-        result = False
-    micropython.heap_unlock()
-    return result
+    return run_heap_locked(b, fw, steps)
 
 
 base0 = (s.volts.base, s.steer.base, s.hall.base)
