@@ -66,7 +66,8 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
                      f"noise floor ay {d.floor['ay']:.1f}%, r {d.floor['r']:.1f}% "
                      f"(what a correct model reaches here)   "
                      f"[{len(d.base.predictions)} stretches at {', '.join(f'{v:g}' for v in speeds)} m/s]")
-        lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
+        if any(c.skipped or c.result is not None for c in d.candidates):
+            lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:
             if c.skipped:
                 lines.extend(_wrap(f"{c.effect:<22}{'':>8}{'':>8}   not tested: {c.skipped}"))
