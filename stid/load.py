@@ -196,11 +196,18 @@ def _share_gyro_bias(runs) -> None:
 
 def _pieces(s):
     """Split where the firmware restarted or the stream stopped for longer than
-    MAX_FILLED_GAP_S (an unplug)."""
-    t = s["t_mcu_us"]
+    MAX_FILLED_GAP_S (an unplug). Samples with one time stamp but successive indices are
+    a soft timer's queued callbacks run in one burst after a blocking write (ESP32): one
+    piece, not a restart (each such burst used to cut an ESP32 run into 10 s pieces)."""
+    t = s["t_mcu_us"].astype(np.int64)
     if len(t) < 2:
         return [(0, len(t))]
-    brk = (np.diff(s["segment"]) != 0) | (np.diff(t) > MAX_FILLED_GAP_S * 1e6) | (np.diff(t) <= 0)
+    dt = np.diff(t)
+    stalled = dt == 0
+    if "index" in (s.dtype.names or ()):
+        step = (np.diff(s["index"].astype(np.int64)) % (1 << 30))
+        stalled &= ~((step >= 1) & (step <= 64))  # a burst: the index goes on
+    brk = (np.diff(s["segment"]) != 0) | (dt > MAX_FILLED_GAP_S * 1e6) | (dt < 0) | stalled
     cuts = np.concatenate([[0], np.flatnonzero(brk) + 1, [len(t)]])
     return list(zip(cuts[:-1], cuts[1:]))
 

@@ -100,7 +100,7 @@ class _Esp32Channel:
         self._read = adc.read_uv
 
     def read(self):
-        return self._read() // 1000
+        return (self._read() + 500) // 1000  # to the nearest mV (flooring read 0.5 mV low)
 
 
 def open_channels(name):
