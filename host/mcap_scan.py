@@ -186,7 +186,11 @@ def _add_def(rec, out: Scan, skip_ids: set, skip_topics) -> None:
         out.channels[rec.id] = rec
         if rec.topic in skip_topics:
             skip_ids.add(rec.id)
-            if rec.metadata.get(OWN_CHUNKS_KEY) == "own":
+            # the claim holds only in a file stid-log itself wrote: another writer that copies the
+            # channel (the mcap library, `stid repair`) keeps the tag but mixes channels in its
+            # chunks, and trusting it there dropped whole chunks of samples unreported
+            header = out.header
+            if rec.metadata.get(OWN_CHUNKS_KEY) == "own" and header is not None and header.library == "stid-log":
                 out.own_chunk_ids.add(rec.id)
 
 

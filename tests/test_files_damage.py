@@ -265,6 +265,37 @@ def test_repair_keeps_every_metadata_record(small_log, tmp_path):
     assert np.array_equal(before.samples, after.samples)
 
 
+def test_a_copy_by_another_mcap_writer_loses_no_samples(small_log, tmp_path):
+    """The official mcap Writer copies the channels (with stid-log's tag that /stid/samples
+    has chunks of its own) but mixes channels in its chunks: the reader must not trust the
+    tag there (it once skipped every chunk that began with a per-sample message, unreported)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    copy = tmp_path / "copy.mcap"
+    with open(small_log, "rb") as f, open(copy, "wb") as g:
+        reader = make_reader(f)
+        w = Writer(g, chunk_size=4096)
+        w.start(profile=reader.get_header().profile, library="mcap python copy")
+        seen_s, seen_c = {}, {}
+        # in log-time order: per-sample messages and frames interleave in every chunk
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if schema is not None and schema.id not in seen_s:
+                seen_s[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in seen_c:
+                seen_c[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                        seen_s.get(channel.schema_id, 0), channel.metadata)
+            w.add_message(seen_c[channel.id], message.log_time, message.data, message.publish_time,
+                          message.sequence)
+        for rec in reader.iter_metadata():
+            w.add_metadata(rec.name, rec.metadata)
+        w.finish()
+    a, b = read_log(small_log), read_log(copy)
+    assert any(c.metadata.get("stid.chunks") == "own" for c in make_reader(open(copy, "rb")).get_summary()
+               .channels.values())  # the tag came along
+    assert not b.damage and np.array_equal(a.samples, b.samples)
+
+
 def test_repair_refuses_foreign_and_empty_input(tmp_path):
     from mcap.writer import Writer
 
