@@ -74,7 +74,40 @@ def _board_of(path: Path, doc: dict) -> dict:
     if missing:
         raise HostError(f"--hello-from {path}: its [board] table lacks {'; '.join(missing)} "
                         "(docs/hello_in_vehicle_file.md); or give an earlier log of the same board")
+    wrong = _wrong_values(board)
+    if wrong:
+        raise HostError(f"--hello-from {path}: in its [board] table {'; '.join(wrong)} "
+                        "(docs/hello_in_vehicle_file.md)")
     return board
+
+
+def _wrong_values(board: dict) -> list:
+    """What a declared HELLO holds that no board sends (a typo converts every sample wrong)."""
+    from host import protocol
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    out = []
+    proto = board["proto"]
+    if not isinstance(proto, int) or isinstance(proto, bool) or not 1 <= proto <= protocol.VERSION:
+        out.append(f"proto = {proto!r} is not a protocol this stid reads (1 to {protocol.VERSION})")
+    if not number(board["rate_hz"]) or board["rate_hz"] <= 0:
+        out.append(f"rate_hz = {board['rate_hz']!r} must be a positive number [Hz]")
+    if not isinstance(board["mod"], int) or isinstance(board["mod"], bool) or board["mod"] < 2:
+        out.append(f"mod = {board['mod']!r} must be the tick modulus, an integer (1073741824)")
+    adc = board["adc"]
+    if not isinstance(adc.get("bits"), int) or not 8 <= adc["bits"] <= 16:
+        out.append(f"adc.bits = {adc.get('bits')!r} must be the ADC's bits (12)")
+    if not number(adc.get("vref")) or not 0.5 <= adc["vref"] <= 5.5:
+        out.append(f"adc.vref = {adc.get('vref')!r} must be the reference in volts (3.3)")
+    if adc.get("unit") not in ("count", "mV"):
+        out.append(f"adc.unit = {adc.get('unit')!r} must be \"count\" (RP2040) or \"mV\" (ESP32)")
+    wheels = board.get("wheels", [])
+    if not isinstance(wheels, list) or not all(isinstance(w, dict) and isinstance(w.get("pulses_per_rev"), int)
+                                               and w["pulses_per_rev"] > 0 for w in wheels):
+        out.append("wheels must be a list of {pulses_per_rev = N, wheel = \"rl\"} tables")
+    return out
 
 
 def _toml(path: Path) -> dict | None:

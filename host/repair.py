@@ -29,10 +29,24 @@ def repair(src, dst, hello_from=None) -> dict:
     if not sc.messages:
         raise LogReadError(f"{src} holds no intact message (nothing to repair): "
                            + (f"{sc.lost_bytes} bytes failed their checks" if sc.damage else "it is empty"))
+    if hello_from is not None and read_log(src).hello:  # before anything is written
+        raise LogReadError(f"{src} has a HELLO of its own; --hello-from is only for a log without one")
     profile = sc.header.profile if sc.header is not None else PROFILE
     library = sc.header.library if sc.header is not None else ""
     counts = {"messages": 0, "metadata": 0, "dropped_messages": 0}
     tmp = dst.with_name(dst.name + ".part")
+    try:
+        _write(sc, tmp, src, profile, library, hello_from, counts)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # a refusal or a failure leaves nothing half-written behind
+        raise
+    tmp.replace(dst)
+    counts.update(was_truncated=sc.truncated, damage=[d.as_dict() for d in sc.damage],
+                  lost_bytes=sc.lost_bytes, data_crc_ok=sc.data_crc_ok)
+    return counts
+
+
+def _write(sc, tmp, src, profile, library, hello_from, counts) -> None:
     with open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD, enable_data_crcs=True)
         w.start(profile=profile, library=f"{library} + stid-repair".strip(" +"))
@@ -62,10 +76,6 @@ def repair(src, dst, hello_from=None) -> dict:
         if hello_from is not None:
             counts["supplied"] = _supply_hello(w, src, hello_from, sc.messages, channel_map, sc.channels)
         w.finish()
-    tmp.replace(dst)
-    counts.update(was_truncated=sc.truncated, damage=[d.as_dict() for d in sc.damage],
-                  lost_bytes=sc.lost_bytes, data_crc_ok=sc.data_crc_ok)
-    return counts
 
 
 def _supply_hello(w: Writer, src: Path, hello_from, messages, channel_map, channels) -> str:

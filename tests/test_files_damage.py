@@ -296,6 +296,13 @@ def test_a_copy_by_another_mcap_writer_loses_no_samples(small_log, tmp_path):
     assert not b.damage and np.array_equal(a.samples, b.samples)
 
 
+def test_repair_refuses_a_hello_for_a_log_that_has_one_and_leaves_nothing(small_log, tmp_path):
+    out = tmp_path / "fixed.mcap"
+    r = _stid("repair", small_log, "-o", out, "--hello-from", small_log)
+    assert r.returncode == 2 and "has a HELLO of its own" in r.stderr and "Traceback" not in r.stderr
+    assert not out.exists() and not (tmp_path / "fixed.mcap.part").exists()
+
+
 def test_repair_refuses_foreign_and_empty_input(tmp_path):
     from mcap.writer import Writer
 

@@ -73,3 +73,17 @@ def test_a_board_table_must_declare_what_conversion_needs(tmp_path):
         check_source(v)
     msg = str(e.value)
     assert "adc.vref" in msg and "mod (" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("line, says", [
+    ('adc = {bits = 12, vref = 3.3, unit = "volts"}', "adc.unit"),
+    ('adc = {bits = 12, vref = "3.3", unit = "count"}', "adc.vref"),
+])
+def test_a_board_table_with_values_no_board_sends_is_refused(tmp_path, line, says):
+    v = tmp_path / "car.toml"
+    v.write_text(f'name = "mine"\nmass = 9.3\na = 0.23\nb = 0.29\n\n[board]\nproto = 9\nrate_hz = 500\n'
+                 f'mod = 1073741824\n{line}\n')
+    with pytest.raises(HostError) as e:
+        check_source(v)
+    msg = str(e.value)
+    assert says in msg and "proto = 9" in msg and "\n" not in msg
