@@ -12,6 +12,24 @@ from stid.errors import StidError
 
 
 
+def _json(doc) -> str:
+    """JSON as every parser reads it: a value that is not a number (a noise floor the data are
+    too short for) is null, not NaN."""
+    import json
+    import math
+
+    def clean(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean(doc), indent=1, allow_nan=False, default=float)
+
+
 def _cmd_flash(args) -> int:
     from stid.flash import flash
 
@@ -25,7 +43,6 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_fit(args) -> int:
-    import json
 
     from stid.fit.fitting import fit
     from stid.progress import Progress
@@ -41,7 +58,7 @@ def _cmd_fit(args) -> int:
         if held:
             doc["validation"] = {"runs": [r.name for r in held], "fit": {k: round(v, 2) for k, v in judged.fit.items()}}
         doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
-        print(json.dumps(doc, indent=1))
+        print(_json(doc))
     else:
         print(res.table())
         if held:
@@ -54,8 +71,15 @@ def _cmd_fit(args) -> int:
 def _validation_runs(args, vehicle):
     if not getattr(args, "validate", None):
         return None
+    from pathlib import Path
+
+    from stid.errors import InputError
     from stid.load import load_runs
 
+    both = {Path(p).resolve() for p in args.validate} & {Path(p).resolve() for p in args.runs}
+    if both:
+        raise InputError(f"--validate {', '.join(sorted(p.name for p in both))}: also a run fitted to; judge on "
+                         "runs the fit did not see (give them only after --validate)")
     held = load_runs(args.validate, vehicle)
     _print_load_warnings(held)
     return held
@@ -87,6 +111,12 @@ def _floor_line(res, floor, se, args) -> str:
         return ""
     short = {o: floor[o] - res.fit[o] for o in res.fit
              if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
+    import math
+
+    if not all(math.isfinite(v) for v in floor.values()):
+        from stid.present import floor_words
+
+        return "  " + floor_words(floor)
     text = ("  noise floor (what a correct model reaches on this data): "
             + "   ".join(f"{o} {floor[o]:.1f}%" for o in floor))
     if short:
@@ -119,7 +149,6 @@ def _print_load_warnings(runs) -> None:
 
 
 def _cmd_diagnose(args) -> int:
-    import json
 
     from stid.diagnose import diagnose
     from stid.present import diagnosis_text
@@ -133,14 +162,13 @@ def _cmd_diagnose(args) -> int:
         if args.peel:
             doc["steps"] = [d.to_json() for d in rounds]
         doc["unexplained"] = rounds[-1].unexplained.to_json()
-        print(json.dumps(doc, indent=1))
+        print(_json(doc))
     else:
         print(diagnosis_text(rounds, args.runs, args.vehicle, peel=args.peel))
     return 0
 
 
 def _cmd_compare(args) -> int:
-    import json
 
     from stid.compare import compare
     from stid.present import comparison_text
@@ -152,8 +180,7 @@ def _cmd_compare(args) -> int:
         entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog,
                           validate=held)
     if args.json:
-        print(json.dumps({"models": [{k: v for k, v in e.items() if not k.startswith("_")} for e in entries]},
-                         indent=1))
+        print(_json({"models": [{k: v for k, v in e.items() if not k.startswith("_")} for e in entries]}))
     else:
         print(comparison_text(entries))
     return 0
@@ -171,7 +198,6 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    import json
 
     from stid.errors import InputError
     from stid.load import load_runs
@@ -216,7 +242,7 @@ def _cmd_plan(args) -> int:
         except ValueError:
             raise InputError(f"--target {t!r}: write NAME=PERCENT, e.g. Iz=5%") from None
     text, doc = plan_report(model, params, manoeuvres, noise, targets, source, params_source)
-    print(json.dumps(doc, indent=1) if args.json else text)
+    print(_json(doc) if args.json else text)
     return 0
 
 

@@ -36,6 +36,17 @@ def _command(runs, vehicle_path, *rest) -> str:
     return " ".join(shlex.quote(str(p)) for p in parts)
 
 
+def floor_words(floor: dict) -> str:
+    """The noise floor, or why there is none."""
+    import math
+
+    if not all(math.isfinite(v) for v in floor.values()):
+        return ("noise floor: not estimated (the stretches are too short for its 1 s predictor in 5 folds; "
+                "log longer runs)")
+    return ("noise floor " + ", ".join(f"{o} {v:.1f}%" for o, v in floor.items())
+            + " (what a correct model reaches here)")
+
+
 def _screened_line(d) -> str:
     """The candidates the linearised screen kept from a full fit, grouped by why."""
     groups = {"chance": [], "small": [], "capped": []}
@@ -62,10 +73,10 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
     for k, d in enumerate(rounds):
         speeds = sorted({round(p.vx, 1) for p in d.base.predictions})
         head = "" if k == 0 else f"step {k + 1}: "
+        n = len(d.base.predictions)
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
-                     f"noise floor ay {d.floor['ay']:.1f}%, r {d.floor['r']:.1f}% "
-                     f"(what a correct model reaches here)   "
-                     f"[{len(d.base.predictions)} stretches at {', '.join(f'{v:g}' for v in speeds)} m/s]")
+                     f"{floor_words(d.floor)}   "
+                     f"[{n} stretch{'es' if n != 1 else ''} at {', '.join(f'{v:g}' for v in speeds)} m/s]")
         if any(c.skipped or c.result is not None for c in d.candidates):
             lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:
@@ -110,7 +121,7 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
     if last.best is not None and not peel:
         nxt = _command(runs, vehicle_path, "diagnose", "--model", final)
         lines.append(f"next: {nxt}")
-    elif final != rounds[0].model or last.best is not None:
+    else:  # the chain is complete (or nothing was missing): fit it, with intervals
         lines.append(f"next: {_command(runs, vehicle_path, 'fit', '--model', final)}")
     return "\n".join(lines).rstrip()
 

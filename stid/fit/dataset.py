@@ -177,7 +177,7 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
                              "which follows the measured speed, or drive at constant speed")
         raise InputError("no run has a stretch where the car moves to fit the dynamics to ("
                          + "; ".join(reasons) + "). Drive random steer or a lane change, "
-                         "or use --method steady for steady-state circles")
+                         "or fit steady-state circles with 'stid fit --method steady'")
     # a stretch of constant steer (a steady circle) holds no dynamic information, only model error
     moving = [s for s in out if np.std(s.steer) >= np.radians(0.1)]
     if not moving:

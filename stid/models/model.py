@@ -18,16 +18,21 @@ _STAGE_ORDER = {"input": 0, "tyre": 1, "body": 2, "output": 3}
 
 
 def parse_model_name(name: str) -> tuple[str, list[str]]:
-    parts = [s.strip() for s in name.split("+") if s.strip()]
+    raw = [s.strip() for s in name.split("+")]
+    parts = [s for s in raw if s]
     if not parts:
         raise InputError("empty model name; write e.g. 'bicycle' or 'bicycle+actuator_lag'")
+    if len(parts) != len(raw):
+        raise InputError(f"model {name!r} has an empty part between its '+' signs: name an effect after each "
+                         "'+' (e.g. 'bicycle+actuator_lag'; 'stid --help' lists the effects)")
     base, effects = parts[0], parts[1:]
     if base not in BASES:
         if base.startswith("greybox"):
             raise InputError(f"{base!r} (study 2's grey-box) is fitted by 'stid fit --model {base}' only; "
                              "diagnose, compare, report and plan work on the bicycle and its effects")
         raise InputError(f"unknown base model {base!r}: a model starts with one of {', '.join(BASES)} "
-                         f"(e.g. 'bicycle+{base}' if {base!r} is an effect)")
+                         f"(e.g. 'bicycle+{base}' if {base!r} is an effect), or is study 2's 'greybox' or "
+                         "'greybox-study' (stid fit only)")
     if len(set(effects)) != len(effects):
         raise InputError(f"model {name!r} names an effect twice")
     return base, effects
