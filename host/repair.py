@@ -29,14 +29,15 @@ def repair(src, dst, hello_from=None) -> dict:
     if not sc.messages:
         raise LogReadError(f"{src} holds no intact message (nothing to repair): "
                            + (f"{sc.lost_bytes} bytes failed their checks" if sc.damage else "it is empty"))
-    if hello_from is not None and read_log(src).hello:  # before anything is written
+    log = read_log(src) if hello_from is not None else None
+    if log is not None and log.hello:  # before anything is written
         raise LogReadError(f"{src} has a HELLO of its own; --hello-from is only for a log without one")
     profile = sc.header.profile if sc.header is not None else PROFILE
     library = sc.header.library if sc.header is not None else ""
     counts = {"messages": 0, "metadata": 0, "dropped_messages": 0}
     tmp = dst.with_name(dst.name + ".part")
     try:
-        _write(sc, tmp, src, profile, library, hello_from, counts)
+        _write(sc, tmp, log, profile, library, hello_from, counts)
     except BaseException:
         tmp.unlink(missing_ok=True)  # a refusal or a failure leaves nothing half-written behind
         raise
@@ -46,7 +47,7 @@ def repair(src, dst, hello_from=None) -> dict:
     return counts
 
 
-def _write(sc, tmp, src, profile, library, hello_from, counts) -> None:
+def _write(sc, tmp, log, profile, library, hello_from, counts) -> None:
     with open(tmp, "wb") as f:
         w = Writer(f, compression=CompressionType.ZSTD, enable_data_crcs=True)
         w.start(profile=profile, library=f"{library} + stid-repair".strip(" +"))
@@ -74,17 +75,14 @@ def _write(sc, tmp, src, profile, library, hello_from, counts) -> None:
             # what the original lacked stays known: the reader reports it for the repaired file too
             w.add_metadata(REPAIR_METADATA, {"damage": json.dumps(damage), "was_truncated": str(sc.truncated)})
         if hello_from is not None:
-            counts["supplied"] = _supply_hello(w, src, hello_from, sc.messages, channel_map, sc.channels)
+            counts["supplied"] = _supply_hello(w, log, hello_from, sc.messages, channel_map, sc.channels)
         w.finish()
 
 
-def _supply_hello(w: Writer, src: Path, hello_from, messages, channel_map, channels) -> str:
-    """Write a HELLO taken from another file into a log that has none."""
+def _supply_hello(w: Writer, log, hello_from, messages, channel_map, channels) -> str:
+    """Write a HELLO taken from another file into a log that has none (``repair`` checked)."""
     import json
 
-    log = read_log(src)
-    if log.hello:
-        raise LogReadError(f"{src} has a HELLO of its own; --hello-from is only for a log without one")
     doc, warning = hello_from_file(hello_from, log.metadata.get("stid.port"))
     hello_ch = next((channel_map[c] for c, ch in channels.items() if ch.topic == TOPICS["hello"][0]), None)
     if hello_ch is None:

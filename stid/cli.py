@@ -109,14 +109,14 @@ def _judge(res, model_name, vehicle, runs, held):
 def _floor_line(res, floor, se, args) -> str:
     if not res.fit or not all(k in floor for k in res.fit):
         return ""
-    short = {o: floor[o] - res.fit[o] for o in res.fit
-             if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
     import math
 
     if not all(math.isfinite(v) for v in floor.values()):
         from stid.present import floor_words
 
         return "  " + floor_words(floor)
+    short = {o: floor[o] - res.fit[o] for o in res.fit
+             if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
     text = ("  noise floor (what a correct model reaches on this data): "
             + "   ".join(f"{o} {floor[o]:.1f}%" for o in floor))
     if short:

@@ -312,7 +312,6 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
             c.why_not = f"screened out: a linearised step from {model_name} gains only {best_gain:.2f} fit points"
         elif len(keep) >= MAX_FULL_FITS:
             c.screen["why"] = "capped"
-            c.screen["capped"] = True
             c.why_not = (f"screened out: {MAX_FULL_FITS} candidates gain more in a linearised step from "
                          f"{model_name} (this one: {best_gain:.1f} fit points)")
         else:
@@ -362,7 +361,7 @@ def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
         # each speed. The first is still named if its value holds once one of the other
         # passing candidates is fitted with it (that one is then tested in the next round).
         # (candidates the screen passed over only for want of room are partners too)
-        capped = [c for c in ranked if c.result is None and c.screen.get("capped")]
+        capped = [c for c in ranked if c.result is None and c.screen.get("why") == "capped"]
         for other in (passing[1:] + capped)[:4]:
             name2 = f"{model_name}+{top.effect}+{other.effect}"
             if progress:

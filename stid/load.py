@@ -206,7 +206,9 @@ def _pieces(s):
     stalled = dt == 0
     if "index" in (s.dtype.names or ()):
         step = (np.diff(s["index"].astype(np.int64)) % (1 << 30))
-        stalled &= ~((step >= 1) & (step <= 64))  # a burst: the index goes on
+        # a burst: the index goes on by a period or a few (missed ones); a restart starts it
+        # again from 0, i.e. a step of nearly 2^30
+        stalled &= ~((step >= 1) & (step <= 64))
     brk = (np.diff(s["segment"]) != 0) | (dt > MAX_FILLED_GAP_S * 1e6) | (dt < 0) | stalled
     cuts = np.concatenate([[0], np.flatnonzero(brk) + 1, [len(t)]])
     return list(zip(cuts[:-1], cuts[1:]))

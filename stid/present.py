@@ -57,7 +57,9 @@ def _screened_line(d) -> str:
                 f"{c.effect} ({gain:.1f} points)" if c.screen.get("why") == "capped" else c.effect)
     parts = []
     if groups["capped"]:
-        parts.append("ranked below the four best: " + ", ".join(groups["capped"]))
+        from stid.diagnose import MAX_FULL_FITS
+
+        parts.append(f"ranked below the {MAX_FULL_FITS} best: " + ", ".join(groups["capped"]))
     if groups["small"]:
         parts.append("would gain under 0.25 fit points: " + ", ".join(groups["small"]))
     if groups["chance"]:

@@ -83,11 +83,11 @@ def speed_grid(vx: np.ndarray, step: float = GRID_STEP):
     vx = np.ascontiguousarray(vx, float)
     key = (len(vx), step, hash(vx.tobytes()))
     hit = _GRIDS.get(key)
-    if hit is None:
+    if hit is None or not np.array_equal(hit[0], vx):  # a hash is not proof: compare
         if len(_GRIDS) >= 64:
             _GRIDS.pop(next(iter(_GRIDS)))
-        hit = _GRIDS[key] = _speed_grid(vx, step)
-    return hit
+        hit = _GRIDS[key] = (vx.copy(), _speed_grid(vx, step))
+    return hit[1]
 
 
 def _speed_grid(vx: np.ndarray, step: float):
