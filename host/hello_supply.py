@@ -46,7 +46,8 @@ def check_source(path) -> Path:
     if doc is not None:
         _board_of(path, doc)  # refuses, naming what is missing
         return path
-    raise HostError(f"--hello-from {path} is not an MCAP log; give an earlier log (.mcap) of the same board")
+    raise HostError(f"--hello-from {path} is not an MCAP log (nor a vehicle file); give an earlier log (.mcap) "
+                    "of the same board, or a vehicle file with a [board] table (docs/hello_in_vehicle_file.md)")
 
 
 # What a HELLO must declare for its samples to be converted (host/units.py, stid/load.py)
