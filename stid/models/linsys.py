@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, signal
+from scipy import linalg
 
 
 def foh(A, B, C, D, dt):
@@ -189,6 +189,8 @@ class LinSys:
         states of these models and far faster than a Python loop over samples. The
         response starts in the steady state of the first input sample.
         """
+        from scipy import signal  # here, not at the top: slow to import, and the fits run LPV
+
         outs = list(self.outputs if outputs is None else outputs)
         idx = [self.out(o) for o in outs]
         ins = [self.inp(i) for i in (self.inputs if inputs is None else inputs)]
@@ -210,7 +212,11 @@ class LinSys:
         zi_unit = [[_steady_zi(num, den) for num in row] for row in tfs]
         offsets = [self.offsets.get(o, 0.0) for o in outs]
 
-        def sim(u: np.ndarray) -> np.ndarray:
+        D_cont = self.D[np.ix_(idx, ins)]
+
+        def sim(u: np.ndarray, u_out: np.ndarray | None = None) -> np.ndarray:
+            """Outputs for inputs u; ``u_out``: other samples of the inputs for the direct
+            feedthrough D u alone (the held input drives the states, linsys.foh_input)."""
             u = np.asarray(u, float)
             if u.ndim == 1:
                 u = u[:, None]
@@ -225,16 +231,11 @@ class LinSys:
                     else:
                         y[:, j] += signal.lfilter(num, den, u[:, k])
                 y[:, j] += offsets[j]
+            if u_out is not None:
+                du = np.asarray(u_out, float)
+                y += ((du[:, None] if du.ndim == 1 else du) - u) @ D_cont.T
             return y
 
-        D_cont = self.D[np.ix_(idx, ins)]
-
-        def feedthrough(u: np.ndarray) -> np.ndarray:
-            """D u[k] alone: the outputs' direct part of an input (the continuous D)."""
-            u = np.asarray(u, float)
-            return (u[:, None] if u.ndim == 1 else u) @ D_cont.T
-
-        sim.feedthrough = feedthrough
         return sim
 
     def simulate(self, u: np.ndarray, dt: float, outputs=None, inputs=None) -> np.ndarray:

@@ -183,15 +183,14 @@ class Model:
         held = foh_input(steer)
         if not self.nonlinear:
             sim = self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)
-            return sim(held) + sim.feedthrough(steer - held)
+            return sim(held, u_out=steer)
         outs = list(outputs)
         n = len(steer)
         # the steer's part is fixed; each pass only needs the slip angles' response
         # to the force correction
         sim = self.simulator(p, vx, dt, outs + ["alpha_f", "alpha_r"], ["delta", "dFf", "dFr"], sensors)
         zeros = np.zeros(n)
-        base = sim(np.column_stack([held, zeros, zeros])) + sim.feedthrough(
-            np.column_stack([steer - held, zeros, zeros]))
+        base = sim(np.column_stack([held, zeros, zeros]), u_out=np.column_stack([steer, zeros, zeros]))
         no = len(outs)
 
         def slip_of_force(f):
