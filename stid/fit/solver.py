@@ -83,8 +83,39 @@ def starting_points(model, space: ParamSpace, p0: dict, multistart: bool) -> lis
     return starts
 
 
-def least_squares(residual, space: ParamSpace, starts: list, **kw):
-    """Run scipy's bounded trust-region least squares from each start; keep the best."""
+# Residuals scaled to unit noise: a solve stops once the cost it can still lose is below
+# this, half the square of a tenth of a standard error (of white noise; the intervals a fit
+# reports are wider, its residuals being coloured). Closer than that to the optimum moves no
+# reported figure; scipy's relative ftol (1e-8) asks for 1e-4 of cost on 10^4 samples, and on
+# a model that misses an effect Gauss-Newton approaches it only linearly (the residuals are
+# large), so the last half of a solve was spent there.
+SETTLED_COST = 0.5 * 0.1 ** 2
+
+
+def settled(tol: float = SETTLED_COST):
+    """A callback for scipy's trf that stops the solve when the cost still to lose is below
+    ``tol``, estimated from the last three reductions as a geometric series (the slower of
+    the last two ratios, so one lucky step does not end it)."""
+    costs = []
+
+    def callback(intermediate_result):
+        costs.append(float(intermediate_result.cost))
+        if len(costs) < 4:
+            return
+        d = -np.diff(costs[-4:])
+        if np.any(d <= 0):
+            return
+        rho = max(d[1] / d[0], d[2] / d[1])
+        if rho < 1.0 and d[2] * rho / (1.0 - rho) < tol:
+            raise StopIteration
+
+    return callback
+
+
+def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = False, **kw):
+    """Run scipy's bounded trust-region least squares from each start; keep the best.
+    ``unit_noise``: the residuals are scaled to unit noise, so the solve may stop once
+    it is statistically at the optimum (SETTLED_COST)."""
     lo, hi = space.bounds_x()
     if getattr(space.model, "nonlinear", False):
         # an iterated simulation is exact only to its tolerance: difference over a step
@@ -93,6 +124,8 @@ def least_squares(residual, space: ParamSpace, starts: list, **kw):
     best = None
     for p0 in starts:
         x0 = np.clip(space.to_x(p0), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        if unit_noise:
+            kw["callback"] = settled()
         try:
             res = optimize.least_squares(lambda x: residual(space.to_p(x)), x0, bounds=(lo, hi),
                                          method="trf", x_scale="jac", **kw)
