@@ -138,7 +138,7 @@ def check_kinematics(run, source: str = "csv") -> None:
 
 def _kinematic_gains(run):
     """(gain of ay on vx*r, sign of r against steer: +1, -1 or 0), or why not decidable."""
-    from scipy import signal
+    from stid.fit import filters
 
     fs = run.fs
     vx = np.asarray(run.vx, float)
@@ -147,10 +147,10 @@ def _kinematic_gains(run):
         return "the signals have gaps (NaN)"
     if moving.sum() / fs < MIN_MOVING_S + 2 / LOWPASS_HZ:
         return f"under {MIN_MOVING_S:g} s above {MOVING_MPS:g} m/s"
-    b, a = signal.butter(2, LOWPASS_HZ, fs=fs)
+    sos = filters.butter_lowpass_sos(2, LOWPASS_HZ, fs)
     # one period of LOWPASS_HZ at either end is the filter's start-up: left out
     moving[: int(fs / LOWPASS_HZ)] = moving[-int(fs / LOWPASS_HZ):] = False
-    lp = lambda v: signal.filtfilt(b, a, np.asarray(v, float))  # noqa: E731
+    lp = lambda v: filters.sosfiltfilt(sos, np.asarray(v, float))  # noqa: E731
     x, y = lp(vx * run.r)[moving], lp(run.ay)[moving]
     xc, yc = x - x.mean(), y - y.mean()
     spread = float(np.sqrt(np.mean(xc ** 2)))

@@ -1,7 +1,6 @@
 from math import factorial
 
 import numpy as np
-from scipy import signal
 
 from stid.models.effect import Effect, register_effect
 from stid.models.params import Param
@@ -15,7 +14,17 @@ def _pade_unit(order: int = PADE_ORDER):
                   * factorial(order - k)) for k in range(order + 1)])
     num = (c * (-1.0) ** np.arange(order + 1))[::-1]  # P(-x), highest power first
     den = c[::-1]
-    return signal.tf2ss(num, den)
+    # controller canonical form, as scipy.signal.tf2ss writes it (by hand: importing
+    # scipy.signal costs half a second of every command, see stid.fit.filters)
+    num, den = num / den[0], den / den[0]
+    D = num[0]
+    A = np.zeros((order, order))
+    A[0] = -den[1:]
+    A[1:, :-1] = np.eye(order - 1)
+    B = np.zeros((order, 1))
+    B[0, 0] = 1.0
+    C = (num[1:] - D * den[1:])[None, :]
+    return A, B, C, np.array([[D]])
 
 
 _A1, _B1, _C1, _D1 = _pade_unit()

@@ -12,10 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
-
 from stid import segments
 from stid.errors import InputError
+from stid.fit import filters
 from stid.run import Run
 from stid.sensor_chain import describe
 
@@ -68,14 +67,15 @@ class Stretch:
 
 
 def _decimate(x: np.ndarray, q: int) -> np.ndarray:
-    return signal.decimate(x, q, ftype="fir", zero_phase=True) if q > 1 else x
+    return filters.decimate(x, q) if q > 1 else x
 
 
 def prefilter(x: np.ndarray, fs: float, f_hz: float = PREFILTER_HZ) -> np.ndarray:
+    """4th-order Butterworth at f_hz, forward and backward (scipy.signal's butter and
+    sosfiltfilt, as stid.fit.filters computes them)."""
     if not f_hz or f_hz >= 0.45 * fs:
         return x
-    sos = signal.butter(4, f_hz, fs=fs, output="sos")
-    return signal.sosfiltfilt(sos, x)
+    return filters.sosfiltfilt(filters.butter_lowpass_sos(4, f_hz, fs), x)
 
 
 def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", "vx")):

@@ -17,7 +17,6 @@ import numpy as np
 from stid import sensor_chain
 from stid.errors import InputError
 from stid.fit import dataset
-from stid.fit.freq_fit import fit_freq
 from stid.fit.solver import ParamSpace
 from stid.fit.steady_fit import fit_steady
 from stid.fit.time_fit import fit_time
@@ -72,6 +71,10 @@ def _fit_bicycle(model, runs, vehicle, method, dynamic, intervals):
     if method == "steady":
         return fit_steady(model, dataset.steady_points(runs))
     if method in ("freq", "freq-study"):
+        # imported here: Welch spectra need scipy.signal, which costs half a second to import
+        # (stid.fit.filters), and the time-domain fit does without it
+        from stid.fit.freq_fit import fit_freq
+
         return fit_freq(model, dataset.dynamic_stretches(runs, constant_speed=True, method=method),
                         weighting="wls" if method == "freq" else "study", method_name=method)
     if method == "time":
@@ -112,7 +115,10 @@ def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-
         def derived(p):
             return {"Cf": v.b / max(eta * v.L / v.mass + v.a / p["Cr"], 1e-12)}
         space = ParamSpace(model, [n for n in model.param_names if n != "Cf"], {}, derived=derived)
-    fitter = fit_time if dynamic == "time" else fit_freq
+    if dynamic == "time":
+        fitter = fit_time
+    else:
+        from stid.fit.freq_fit import fit_freq as fitter
     kw = {"intervals": intervals} if dynamic == "time" else {}
     res = fitter(model, stretches, space=space, method_name=f"two-step (steady + {dynamic})", **kw)
     if "Cf" in ss.names:

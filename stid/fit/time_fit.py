@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import signal
 
 from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.result import FitResult, Prediction, fit_percent
@@ -77,12 +76,14 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         r_now = residual(p_hat, np.ones(2)).reshape(-1, 2)
         sigma = np.std(r_now, axis=0)
         sigma = np.where(sigma > 0, sigma, 1.0)
-        res = least_squares(lambda p: residual(p, sigma), space, [p_hat])
+        res = least_squares(lambda p: residual(p, sigma), space, [p_hat], unit_noise=True)
         p_hat = space.to_p(res.x)
     if whiten:
         # prediction-error refinement: an AR model of each output's residual colour, then
         # the residuals (and so the Jacobian) are whitened by its inverse: maximum
         # likelihood for Gaussian coloured noise, hence efficient
+        from scipy import signal  # only here: scipy.signal is slow to import (stid.fit.filters)
+
         ar = _ar_models([simulate(model, p_hat, st)[k] - y for st, k, y in zip(stretches, keeps, ys)])
 
         def white_residual(p):
@@ -93,7 +94,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                                             for j in range(2)])[AR_ORDER:].ravel())
             return np.concatenate(out)
 
-        res = least_squares(white_residual, space, [p_hat])
+        res = least_squares(white_residual, space, [p_hat], unit_noise=True)
         p_hat = space.to_p(res.x)
         keeps = [k.copy() for k in keeps]
         for k in keeps:  # the first AR_ORDER kept samples only warm the whitening filter up
