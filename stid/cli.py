@@ -5,6 +5,7 @@ and a non-zero exit, never a traceback."""
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 
 from host.errors import HostError
@@ -405,6 +406,9 @@ def main(argv=None) -> int:
     try:
         rc = args.func(args)
         sys.stdout.flush()  # inside the try: a closed pipe shows here, not at interpreter exit
+        # what is left lives until the process ends: frozen, it is spared the interpreter's
+        # final garbage collections (0.15 s of every command once numba is loaded)
+        gc.freeze()
         return rc
     except (StidError, HostError) as e:
         print(f"stid {args.command}: error: {e}", file=sys.stderr)

@@ -30,8 +30,10 @@ round with the winner added until nothing is named.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -172,7 +174,10 @@ def screen_out(effect_cls, stretches) -> str:
 
 
 def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, base=None,
-                   stretches=None, candidates=None, floor=None) -> Diagnosis:
+                   stretches=None, candidates=None, floor=None, pool=None) -> Diagnosis:
+    """One round: every candidate effect against ``model_name``. ``floor``: the noise
+    floor and its standard errors when the caller has them (or a Future of them);
+    ``pool``: worker processes for the independent fits (``worker_pool``)."""
     stretches = stretches if stretches is not None else dataset.dynamic_stretches(runs)
     _, present = parse_model_name(model_name)
     if progress:
@@ -181,6 +186,8 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
     ra = analyse(base.predictions)
     tau = max(ra.tau_int.values())
     n_eff = ra.n / tau
+    if isinstance(floor, Future):  # computed in a worker while the base model was fitted
+        floor = floor.result()
     floor, floor_se = floor if floor is not None else noise_floor_uncertainty(stretches)
     cands = []
     for name in [n for n in (candidates or available_effects()) if n not in present]:
@@ -193,7 +200,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         progress.step(f"screening {len(todo)} effects")
     to_fit = screen_candidates(model_name, todo, vehicle, stretches, base, n_eff, level)
     results = _fit_candidates(model_name, [c.effect for c in to_fit], vehicle, stretches, base.all_params(),
-                              progress)
+                              progress, pool)
     for c, res in zip(to_fit, results):
         c.result = res
         k = len(available_effects()[c.effect].params)
@@ -221,7 +228,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         else:
             c.passes = True
     todo.sort(key=lambda c: (not c.passes, -c.lr))
-    _name_one(todo, model_name, vehicle, stretches, progress)
+    _name_one(todo, model_name, vehicle, stretches, progress, pool, n_eff)
     for c in todo:
         if c.result is not None:
             c.explanation = explain(c, base, stretches)
@@ -334,7 +341,7 @@ def _indistinct(top, c) -> bool:
     return top.lr - c.lr < chdtri(max(extra, 1), c.level)
 
 
-def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
+def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff=None) -> None:
     """Of the candidates that pass on their own, name at most one: the best, and only
     when its evidence holds. The others are the same symptom (or not separable)."""
     passing = [c for c in ranked if c.passes]
@@ -355,7 +362,8 @@ def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
             c.why_not = f"the same symptom as {top.effect} (--peel tests it again once that is added)"
     if progress:
         progress.step(f"checking {top.effect} at each speed")
-    top.evidence = check_evidence(f"{model_name}+{top.effect}", top.effect, vehicle, stretches, top.result)
+    name = f"{model_name}+{top.effect}"
+    top.evidence = check_evidence(name, top.effect, vehicle, stretches, top.result, _mapper(pool, name))
     if not top.evidence.holds:
         # two effects missing at once: the second bends the first's parameter differently at
         # each speed. The first is still named if its value holds once one of the other
@@ -368,7 +376,12 @@ def _name_one(ranked, model_name, vehicle, stretches, progress) -> None:
                 progress.step(f"checking {top.effect} with {other.effect}")
             init = dict(other.result.all_params() if other.result is not None else {}, **top.result.all_params())
             both = fit((), vehicle, name2, "time", stretches=stretches, init=init, multistart=False)
-            ev = check_evidence(name2, top.effect, vehicle, stretches, both)
+            k2 = len(available_effects()[other.effect].params)
+            if n_eff is not None and chdtrc(k2, max(_lr(top.result, both, n_eff), 0.0)) >= top.level:
+                # the partner adds nothing beyond chance to the first effect (it sits at or near
+                # its off value): a joint fit that is the first effect alone is no second opinion
+                continue
+            ev = check_evidence(name2, top.effect, vehicle, stretches, both, _mapper(pool, name2))
             if ev.holds:
                 ev.reason = f"holds once {other.effect} is fitted with it (first: {top.evidence.reason})"
                 top.evidence = ev
@@ -406,26 +419,58 @@ def _cost(model, stretches, p, sigma, discard_s=0.5):
     return c
 
 
-def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None):
-    """Fit every candidate from the base's parameters, on both cores when there are
-    several (each fit is independent)."""
+@contextlib.contextmanager
+def worker_pool():
+    """Worker processes for one diagnose (None on a one-core machine): the candidates'
+    fits, the evidence's per-speed refits and the noise floor are independent, and run
+    beside each other. Forked after the compiled simulator is loaded, so the workers
+    share it instead of each loading it."""
+    if WORKERS < 2:
+        yield None
+        return
+    from concurrent.futures import ProcessPoolExecutor
+
+    from stid.models.lpv import load_compiled
+
+    load_compiled()
+    with ProcessPoolExecutor(max_workers=WORKERS) as ex:
+        yield ex
+
+
+def _in_workers(model_name: str) -> bool:
+    """Effects defined in the user's own modules (a test file, a notebook) may not be
+    importable in a worker process: models with one run in this process."""
+    _, effects = parse_model_name(model_name)
+    return all(available_effects()[e].__module__.startswith("stid.effects.") for e in effects)
+
+
+def _mapper(pool, model_name: str):
+    return pool.map if pool is not None and _in_workers(model_name) else map
+
+
+def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None, pool=None):
+    """Fit every candidate from the base's parameters, in the worker pool when there is
+    one (each fit is independent)."""
     jobs = [(model_name, e, vehicle, stretches, init) for e in effects]
-    # effects defined in the user's own modules (a test file, a notebook) may not be importable
-    # in a worker process: those rounds run in this process
-    custom = [e for e in effects if not available_effects()[e].__module__.startswith("stid.effects.")]
-    if len(jobs) < 3 or custom or WORKERS < 2:
+    if pool is None or len(jobs) < 2 or not all(_in_workers(f"{model_name}+{e}") for e in effects):
         out = []
         for j in jobs:
             if progress:
                 progress.step(f"trying +{j[1]}")
             out.append(_fit_one(j))
         return out
-    from concurrent.futures import ProcessPoolExecutor
-
     if progress:
         progress.step(f"trying {len(jobs)} effects on {WORKERS} cores")
-    with ProcessPoolExecutor(max_workers=WORKERS) as ex:
-        return list(ex.map(_fit_one, jobs))
+    # the fits with most parameters first (each iteration costs a simulation per
+    # parameter), so that the cores finish together; a fit no worker has taken yet is
+    # done here rather than waited for
+    order = sorted(range(len(jobs)), key=lambda i: -len(available_effects()[effects[i]].params))
+    futures = {i: pool.submit(_fit_one, jobs[i]) for i in order}
+    out = {}
+    for i in reversed(order):
+        if futures[i].cancel():
+            out[i] = _fit_one(jobs[i])
+    return [out[i] if i in out else futures[i].result() for i in range(len(jobs))]
 
 
 def explain(c: Candidate, base, stretches) -> str:
@@ -475,27 +520,29 @@ def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max
     ``candidates``: effect names to try (default: every registered effect)."""
     Model(model_name, vehicle)  # a misspelt model is the user's first mistake to hear about
     stretches = dataset.dynamic_stretches(runs)  # built once: every fit of every round uses them
-    floor = noise_floor_uncertainty(stretches)
-    rounds = []
-    name = model_name
-    base = None
-    for _ in range(max_steps if peel else 1):
-        d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches,
-                           candidates=candidates, floor=floor)
-        d.stretches = stretches
-        rounds.append(d)
-        best = d.best
-        if best is None or best.separable_from:
-            break
-        name = f"{name}+{best.effect}"
-        base = best.result
-    last = rounds[-1]
-    if progress:
-        progress.step("looking where the error remains")
-    named = last.best
-    final_name, final = (f"{last.model}+{named.effect}", named.result) if named else (last.model, last.base)
-    reasons = [f"{c.effect} is {c.why_not}" for c in last.candidates
-               if c.evidence is not None and not c.evidence.holds]
-    last.unexplained = describe_unexplained(final_name, final, vehicle, stretches, floor[0], floor[1], reasons,
-                                            catalogue_done=named is None)
+    with worker_pool() as pool:
+        floor = pool.submit(noise_floor_uncertainty, stretches) if pool else noise_floor_uncertainty(stretches)
+        rounds = []
+        name = model_name
+        base = None
+        for _ in range(max_steps if peel else 1):
+            d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches,
+                               candidates=candidates, floor=floor, pool=pool)
+            floor = (d.floor, d.floor_se)
+            d.stretches = stretches
+            rounds.append(d)
+            best = d.best
+            if best is None or best.separable_from:
+                break
+            name = f"{name}+{best.effect}"
+            base = best.result
+        last = rounds[-1]
+        if progress:
+            progress.step("looking where the error remains")
+        named = last.best
+        final_name, final = (f"{last.model}+{named.effect}", named.result) if named else (last.model, last.base)
+        reasons = [f"{c.effect} is {c.why_not}" for c in last.candidates
+                   if c.evidence is not None and not c.evidence.holds]
+        last.unexplained = describe_unexplained(final_name, final, vehicle, stretches, floor[0], floor[1], reasons,
+                                                catalogue_done=named is None, mapper=_mapper(pool, final_name))
     return rounds

@@ -76,16 +76,21 @@ def partitions(stretches) -> dict:
     return out
 
 
-def fit_groups(model_name: str, vehicle, stretches, init: dict) -> dict:
-    """Each partition's groups, each fitted on its own (from ``init``)."""
+def _fit_group(job):
     from stid.fit.dataset import Stretches
     from stid.fit.fitting import fit
 
+    model_name, vehicle, stretches, init = job
+    return fit((), vehicle, model_name, "time", stretches=Stretches(stretches), init=init, multistart=False)
+
+
+def fit_groups(model_name: str, vehicle, stretches, init: dict, mapper=map) -> dict:
+    """Each partition's groups, each fitted on its own (from ``init``). ``mapper``: a
+    map over the independent fits (stid.diagnose passes its worker pool's)."""
     parts = partitions(stretches)
-    for groups in parts.values():
-        for g in groups:
-            g.result = fit((), vehicle, model_name, "time", stretches=Stretches(g.stretches), init=init,
-                           multistart=False)
+    groups = [g for gs in parts.values() for g in gs]
+    for g, res in zip(groups, mapper(_fit_group, [(model_name, vehicle, g.stretches, init) for g in groups])):
+        g.result = res
     return parts
 
 
@@ -126,8 +131,9 @@ def disagreements(parts: dict, names) -> list:
     return out
 
 
-def check_evidence(model_name: str, effect: str, vehicle, stretches, result) -> Evidence:
-    """Does the effect's parameter hold as one plausible value across the evidence?"""
+def check_evidence(model_name: str, effect: str, vehicle, stretches, result, mapper=map) -> Evidence:
+    """Does the effect's parameter hold as one plausible value across the evidence?
+    ``mapper``: as in ``fit_groups``."""
     from stid.models.model import Model
 
     model = Model(model_name, vehicle)
@@ -137,7 +143,7 @@ def check_evidence(model_name: str, effect: str, vehicle, stretches, result) -> 
         return Evidence(False, "its parameter stopped at the edge of the plausible range ("
                         + ", ".join(f"{n} = {result.value(n):.4g} {result.units.get(n, '')}" for n in stuck)
                         + "): the data push it outside what the physics allows")
-    parts = fit_groups(model_name, vehicle, stretches, result.all_params())
+    parts = fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
     for kind, groups in parts.items():
         for g in groups:
             s = at_bound(g.result, own, model)
