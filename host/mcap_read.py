@@ -39,6 +39,7 @@ class LogData:
     damage: list = field(default_factory=list)  # Damage: stretches skipped because they failed a check
     data_crc_ok: bool | None = None
     bad_frames: int = 0  # frames in intact chunks that still do not decode (a writer bug, never data)
+    missing_frames: int = 0  # frames stid-log counted when it closed the file that the file does not hold
 
     @property
     def hello(self) -> dict:
@@ -46,7 +47,7 @@ class LogData:
 
     def damage_note(self) -> str | None:
         """One sentence on what was skipped and where, or None for an intact file."""
-        if not self.damage and self.data_crc_ok is not False and not self.bad_frames:
+        if not self.damage and self.data_crc_ok is not False and not self.bad_frames and not self.missing_frames:
             return None
         parts = []
         if self.damage:
@@ -69,6 +70,10 @@ class LogData:
                          "the samples are intact, metadata may not be")
         if self.bad_frames:
             parts.append(f"{self.bad_frames} logged frames do not decode and were left out")
+        if self.missing_frames:
+            parts.append(f"stid-log counted {self.frames + self.missing_frames} frames when it closed the file, "
+                         f"{self.frames} are in it: the last {self.missing_frames} are missing (a copy cut short or "
+                         "filtered by another tool?), never guessed; the original log has them")
         return "; ".join(parts)
 
 
@@ -153,7 +158,22 @@ def read_log(path) -> LogData:
         data.hellos = _hellos_from_frames(frames)
     data.frames = len(frames.offset)
     data.samples, data.bad_frames = _decode_samples(frames)
+    data.missing_frames = _missing_at_the_end(data)
     return data
+
+
+def _missing_at_the_end(data: LogData) -> int:
+    """Frames stid-log counted (its closing ``stid.stats``) that the file does not hold,
+    where no damaged record and no gap in the messages' numbering shows them missing: they
+    were lost after the last frame the file holds, which no check inside the file can see."""
+    st = data.metadata.get("stid.stats")
+    if data.damage or not isinstance(st, dict) or not isinstance(st.get("frames"), dict):
+        return 0  # damage already says what is missing; no closing count (a crash, another logger)
+    try:
+        counted = sum(int(v) for v in st["frames"].values())
+    except (TypeError, ValueError):
+        return 0
+    return max(counted - data.frames, 0)
 
 
 def _repaired_damage(meta) -> list:

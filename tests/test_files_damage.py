@@ -265,21 +265,25 @@ def test_repair_keeps_every_metadata_record(small_log, tmp_path):
     assert np.array_equal(before.samples, after.samples)
 
 
-def test_a_copy_by_another_mcap_writer_loses_no_samples(small_log, tmp_path):
-    """The official mcap Writer copies the channels (with stid-log's tag that /stid/samples
-    has chunks of its own) but mixes channels in its chunks: the reader must not trust the
-    tag there (it once skipped every chunk that began with a per-sample message, unreported)."""
+def _copy_with_the_official_writer(src, dst, drop_last_frames: int = 0):
+    """What another tool makes of a log: every message and metadata record copied by the
+    official mcap Writer (its own chunks, channels mixed in each), optionally without the
+    last ``drop_last_frames`` /stid/frames messages."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    copy = tmp_path / "copy.mcap"
-    with open(small_log, "rb") as f, open(copy, "wb") as g:
+    with open(src, "rb") as f, open(dst, "wb") as g:
         reader = make_reader(f)
+        msgs = list(reader.iter_messages(log_time_order=True))
+        frames = [i for i, (_, ch, _) in enumerate(msgs) if ch.topic == "/stid/frames"]
+        dropped = set(frames[len(frames) - drop_last_frames:]) if drop_last_frames else set()
         w = Writer(g, chunk_size=4096)
         w.start(profile=reader.get_header().profile, library="mcap python copy")
         seen_s, seen_c = {}, {}
         # in log-time order: per-sample messages and frames interleave in every chunk
-        for schema, channel, message in reader.iter_messages(log_time_order=True):
+        for i, (schema, channel, message) in enumerate(msgs):
+            if i in dropped:
+                continue
             if schema is not None and schema.id not in seen_s:
                 seen_s[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
             if channel.id not in seen_c:
@@ -290,10 +294,34 @@ def test_a_copy_by_another_mcap_writer_loses_no_samples(small_log, tmp_path):
         for rec in reader.iter_metadata():
             w.add_metadata(rec.name, rec.metadata)
         w.finish()
+
+
+def test_a_copy_by_another_mcap_writer_loses_no_samples(small_log, tmp_path):
+    """The official mcap Writer copies the channels (with stid-log's tag that /stid/samples
+    has chunks of its own) but mixes channels in its chunks: the reader must not trust the
+    tag there (it once skipped every chunk that began with a per-sample message, unreported)."""
+    from mcap.reader import make_reader
+
+    copy = tmp_path / "copy.mcap"
+    _copy_with_the_official_writer(small_log, copy)
     a, b = read_log(small_log), read_log(copy)
     assert any(c.metadata.get("stid.chunks") == "own" for c in make_reader(open(copy, "rb")).get_summary()
                .channels.values())  # the tag came along
-    assert not b.damage and np.array_equal(a.samples, b.samples)
+    assert not b.damage and np.array_equal(a.samples, b.samples) and not b.missing_frames
+    assert b.damage_note() is None
+
+
+def test_frames_missing_at_the_end_of_a_copy_are_reported(small_log, tmp_path):
+    """A copy without its last frame messages is a well-formed file with consecutive frame
+    numbers: only stid-log's closing count (stid.stats) shows the loss. It is said, with the
+    count, and the samples that are there load as they are."""
+    copy = tmp_path / "short.mcap"
+    _copy_with_the_official_writer(small_log, copy, drop_last_frames=3)
+    a, b = read_log(small_log), read_log(copy)
+    assert not b.damage and b.missing_frames == a.frames - b.frames > 0
+    note = b.damage_note()
+    assert f"the last {b.missing_frames} are missing" in note
+    assert np.array_equal(b.samples, a.samples[:len(b.samples)]) and len(b.samples) < len(a.samples)
 
 
 def test_repair_refuses_a_hello_for_a_log_that_has_one_and_leaves_nothing(small_log, tmp_path):
