@@ -7,6 +7,7 @@ import math
 import sys
 
 from hil_sim import manoeuvres, vehicle
+from host.version import installed_version
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -15,6 +16,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="A simulated 1:8 car running the real firmware under MicroPython. Prints "
                     "'port: /dev/pts/N' first, then streams in real time until --duration ends or Ctrl-C. "
                     "With --fast -o RUN.mcap it records faster than real time instead.")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {installed_version()}")
     ap.add_argument("--manoeuvre", default="random_steer", choices=manoeuvres.MANOEUVRES)
     ap.add_argument("--effects", default="", help="comma-separated hidden effects: " + ", ".join(vehicle.EFFECT_NAMES))
     ap.add_argument("--effect-file", action="append", default=[], metavar="FILE",

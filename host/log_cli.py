@@ -7,15 +7,7 @@ import sys
 
 from host.errors import HostError
 from host.protocol import LINK_BAUD
-
-
-def _version() -> str:
-    # the installed distribution's version: host/ does not import stid
-    from importlib.metadata import PackageNotFoundError, version
-    try:
-        return version("stid")
-    except PackageNotFoundError:
-        return "unknown (not installed)"
+from host.version import installed_version
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,7 +17,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "Ctrl-C finishes the file cleanly; an unplugged port is waited for and reopened).")
     ap.add_argument("port", nargs="?", help="serial port, e.g. /dev/ttyUSB0, /dev/ttyACM0 or a "
                                             "/dev/serial/by-id/... link (stable across replug)")
-    ap.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {installed_version()}")
     ap.add_argument("-o", "--output", help="output file (default: stid-YYYYmmdd-HHMMSS.mcap)")
     ap.add_argument("--duration", type=float, help="stop after this many seconds")
     ap.add_argument("--baud", type=int, default=LINK_BAUD,

@@ -54,6 +54,9 @@ def test_version_help_and_a_closed_pipe():
     for args in (["--version"], ["fit", "--version"], ["diagnose", "--version"]):
         r = _stid(*args)
         assert r.returncode == 0 and r.stdout.startswith("stid "), (args, r.stdout, r.stderr)
+    for command in ("stid-log", "stid-sim"):  # every command a user types
+        r = subprocess.run([tool(command), "--version"], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and r.stdout.startswith(f"{command} "), (command, r.stdout, r.stderr)
     h = _stid("--help")
     assert "A first session" in h.stdout
     for effect in ("actuator_lag", "tyre_relaxation", "accel_offset", "body_roll", "tyre_saturation", "sensor_bias"):
