@@ -11,6 +11,7 @@ import sys
 from host.errors import HostError
 from stid.errors import StidError
 
+RUNS_HELP = "RUN.mcap (stid-log) or RUN.csv (import contract)"
 
 
 def _json(doc) -> str:
@@ -323,7 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("fit", help="fit a model to runs: parameters with uncertainty, fit percent, warnings")
-    p.add_argument("runs", nargs="+", metavar="RUN", help="RUN.mcap (stid-log) or RUN.csv (import contract)")
+    p.add_argument("runs", nargs="+", metavar="RUN", help=RUNS_HELP)
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("--model", default="bicycle", help="bicycle or bicycle+effect+... (default bicycle)")
     p.add_argument("--method", default="auto", choices=["auto", "steady", "freq", "freq-study", "time", "two-step"],
@@ -333,7 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_fit)
 
     p = sub.add_parser("diagnose", help="name the physical effect the model is missing")
-    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("runs", nargs="+", metavar="RUN", help=RUNS_HELP)
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("--model", default="bicycle", help="the model to diagnose (default bicycle)")
     p.add_argument("--peel", action="store_true", help="add the winner and diagnose again until nothing is missing")
@@ -341,7 +342,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_diagnose)
 
     p = sub.add_parser("compare", help="compare models: fit, AIC/BIC, where the error lives, residual analysis")
-    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("runs", nargs="+", metavar="RUN", help=RUNS_HELP)
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("--model", action="append", help="a model to compare (repeat the option)")
     p.add_argument("--method", default="time", choices=["time", "freq"], help="how each model is fitted")
@@ -350,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("report", help="self-contained HTML report: fits, diagnosis, figures, the error falling")
-    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("runs", nargs="+", metavar="RUN", help=RUNS_HELP)
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for report.html")
     p.add_argument("--model", default="bicycle", help="the starting model (default bicycle)")

@@ -154,11 +154,12 @@ def comparison_text(entries) -> str:
         lines.append("")
         lines.append(f"{title} (ay / r):")
         cw = max(16, max(len(n) for n in names) + 2)
-        lines.append(f"  {'':<28}" + "".join(f"{n:<{cw}}" for n in names))
+        lw = max([28] + [len(str(row)) + 2 for row in entries[0][key]])  # a long run name keeps its column
+        lines.append(f"  {'':<{lw}}" + "".join(f"{n:<{cw}}" for n in names))
         for row in entries[0][key]:
             cells = "".join(f"{_pct(e[key][row]['ay']).strip() + ' / ' + _pct(e[key][row]['r']).strip():<{cw}}"
                             for e in entries)
-            lines.append(f"  {row:<28}{cells}")
+            lines.append(f"  {row:<{lw}}{cells}")
     return "\n".join(lines)
 
 
@@ -171,10 +172,12 @@ def _verdict(entries) -> str:
                 if fl[o] - e["fit"][o] > max(0.5, 2.576 * se.get(o, 0.0))}
 
     gap = short(best)
-    text = f"verdict: {best['model']} is the best of these by BIC"
+    # one model has no rival to be best of: the verdict is its distance to the floor alone
+    one = len(entries) == 1
+    text = f"verdict: {best['model']}" + ("" if one else " is the best of these by BIC")
     if not gap:
-        text += " and reaches the noise floor: nothing more this data can show"
+        text += (" reaches" if one else " and reaches") + " the noise floor: nothing more this data can show"
     else:
-        text += (" but stays " + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
+        text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
                  + " short of the noise floor: run `stid diagnose --model " + best["model"] + "` to see what is missing")
     return text

@@ -68,3 +68,18 @@ def test_version_help_and_a_closed_pipe():
     err = p.stderr.read()
     p.wait(timeout=120)
     assert err == b"" and p.returncode == 0, err
+
+
+def test_the_verdict_on_one_model_compares_it_with_the_floor_alone():
+    from stid.present import _verdict
+
+    def entry(name, ay, r, bic):
+        return {"model": name, "fit": {"ay": ay, "r": r}, "bic": bic, "noise_floor": {"ay": 99.0, "r": 98.0},
+                "noise_floor_stderr": {"ay": 0.1, "r": 0.1}}
+
+    one = _verdict([entry("bicycle", 60.0, 90.0, 0.0)])
+    assert one.startswith("verdict: bicycle stays ay 39.0 points") and "best of these" not in one
+    assert _verdict([entry("bicycle", 98.9, 97.95, 0.0)]) == ("verdict: bicycle reaches the noise floor: nothing "
+                                                              "more this data can show")
+    two = _verdict([entry("bicycle", 60.0, 90.0, 0.0), entry("bicycle+actuator_lag", 98.9, 97.9, -10.0)])
+    assert two.startswith("verdict: bicycle+actuator_lag is the best of these by BIC and reaches")
