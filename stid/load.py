@@ -157,19 +157,19 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
         runs.append(_convert(piece, log, vehicle, name, str(path)))
         runs[-1].meta["segment"] = int(piece["segment"][0]) if "segment" in (piece.dtype.names or ()) else 0
     _share_gyro_bias(runs)
+    # (whoever prints a run's warnings names the run: they do not repeat the file's name)
     if log.truncated:
         for r in runs:
-            r.warn(f"{Path(path).name} was cut short (logger killed?): read up to its last complete chunk; "
-                   f"'stid repair' makes it a complete file")
+            r.warn("the file was cut short (logger killed?): read up to its last complete chunk; "
+                   "'stid repair' makes it a complete file")
     damage = log.damage_note()
     if damage:
         for r in runs:
-            r.warn(f"{Path(path).name}: {damage}")
+            r.warn(damage)
     supplied = log.hello.get("supplied_from")
     if supplied:
         for r in runs:
-            r.warn(f"no HELLO was received in {Path(path).name}; its configuration was supplied from "
-                   f"{supplied}")
+            r.warn(f"no HELLO was received in this log; its configuration was supplied from {supplied}")
     for r in runs:
         input_checks.check_kinematics(r, source="mcap")
     return runs
