@@ -84,6 +84,7 @@ class Candidate:
     evidence: object = None
     skipped: str = ""
     screen: dict = field(default_factory=dict)  # the linearised step's prediction (see screen_candidates)
+    start: dict | None = None  # where the screen's step landed: a start for the full fit
 
     def p_words(self) -> str:
         return p_in_words(self.p_value, self.level)
@@ -200,7 +201,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         progress.step(f"screening {len(todo)} effects")
     to_fit = screen_candidates(model_name, todo, vehicle, stretches, base, n_eff, level)
     results = _fit_candidates(model_name, [c.effect for c in to_fit], vehicle, stretches, base.all_params(),
-                              progress, pool)
+                              progress, pool, starts=[c.start for c in to_fit])
     for c, res in zip(to_fit, results):
         c.result = res
         k = len(available_effects()[c.effect].params)
@@ -281,6 +282,7 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
         q0 = dict(p0, **{q.name: (q.zero if q.zero is not None else q.value("init", vehicle)) for q in cls.params})
         rq = resid(m, q0)
         J, lo_b, hi_b = list(cols), [-np.inf] * len(cols), [np.inf] * len(cols)
+        moves = []  # (effect parameter, its off value, the change one unit of its coefficient makes)
         for q in offable:  # a coefficient on the change a small step away from the zero makes
             lo, hi = m.bounds(q.name)
             z = q0[q.name]
@@ -292,6 +294,7 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
                 h = 0.01 * abs(d0) if d0 != 0 else 1e-3 * (hi - lo)
                 c_lo, c_hi = (0.0, np.inf) if q.log else sorted(((lo - z) / h, (hi - z) / h))
             J.append(resid(m, dict(q0, **{q.name: z + h})) - rq)
+            moves.append((q.name, z, h))
             lo_b.append(c_lo)
             hi_b.append(c_hi)
         A = np.stack([j.ravel() for j in J], axis=1)
@@ -304,6 +307,13 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
         c.level = level
         fit_now = {o: base.fit[o] for o in OUTS}
         c.screen = {"fit": {o: 100.0 - (100.0 - fit_now[o]) / np.sqrt(ratio[i]) for i, o in enumerate(OUTS)}}
+        # where the step lands: a start for the full fit (often far closer than the effect at
+        # its off value or at its default; the fit takes the best of the three)
+        x = step.x / scale
+        start = dict(q0, **{n: p0[n] + x[i] for i, n in enumerate(base.names)})
+        start.update({name: z + x[len(cols) + j] * h for j, (name, z, h) in enumerate(moves)})
+        c.start = {n: min(max(v, m.bounds(n)[0] * (1.5 if m.param(n).log else 1.0)), m.bounds(n)[1])
+                   for n, v in start.items() if n in m.param_names}
         c.gain = {o: c.screen["fit"][o] - fit_now[o] for o in OUTS}
         screened.append(c)
     screened.sort(key=lambda c: -c.lr)
@@ -393,7 +403,7 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
 
 
 def _fit_one(args):
-    model_name, effect, vehicle, stretches, init = args
+    model_name, effect, vehicle, stretches, init, screened = args
     m2 = Model(f"{model_name}+{effect}", vehicle)
     # start where the candidate equals the base model (its effect at zero) or at the effect's
     # default, whichever fits better: a candidate must never end worse than its base. Only the
@@ -405,7 +415,8 @@ def _fit_one(args):
         at_zero[p.name] = min(max(at_zero[p.name], lo * 1.5 if p.log else lo), hi)
     default = {p.name: p.value("init", vehicle) for p in cls.params}
     sigma = np.std(np.vstack([s.y for s in stretches]), axis=0)
-    best = min((dict(init, **at_zero), dict(init, **default)), key=lambda q: _cost(m2, stretches, q, sigma))
+    starts = [dict(init, **at_zero), dict(init, **default)] + ([dict(init, **screened)] if screened else [])
+    best = min(starts, key=lambda q: _cost(m2, stretches, q, sigma))
     return fit((), vehicle, m2.name, "time", stretches=stretches, init=best, multistart=False)
 
 
@@ -448,10 +459,11 @@ def _mapper(pool, model_name: str):
     return pool.map if pool is not None and _in_workers(model_name) else map
 
 
-def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None, pool=None):
-    """Fit every candidate from the base's parameters, in the worker pool when there is
-    one (each fit is independent)."""
-    jobs = [(model_name, e, vehicle, stretches, init) for e in effects]
+def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None, pool=None, starts=None):
+    """Fit every candidate from the base's parameters (or where the screen's step landed,
+    ``starts``, when that fits better), in the worker pool when there is one (each fit is
+    independent)."""
+    jobs = [(model_name, e, vehicle, stretches, init, s) for e, s in zip(effects, starts or [None] * len(effects))]
     if pool is None or len(jobs) < 2 or not all(_in_workers(f"{model_name}+{e}") for e in effects):
         out = []
         for j in jobs:
