@@ -97,6 +97,33 @@ def _check_contract(name):
                 d.append((model.freqresp(hp, f, 5.0) - model.freqresp(hm, f, 5.0)) / (2 * h * v))
         scale = np.max(np.abs(d[1])) + 1e-12
         assert np.max(np.abs(d[0] - d[1])) < 1e-2 * scale + 1e-9, (name, q.name)
+    if cls.__module__.startswith("stid.effects."):
+        _check_speed_law(model, p)
+
+
+def _check_speed_law(model, p):
+    """A catalogue effect keeps every matrix entry of the form c0 + c1 vx + c2 / vx (the LPV
+    simulator trusts it for them, stid.models.lpv.SpeedLaw): at the defaults and at random
+    parameters inside the bounds, with and without the sensor filters, a fourth build
+    follows the law the first three set."""
+    from stid.models.lpv import SpeedLaw, system_parts
+
+    rng = np.random.default_rng(1)
+    points = [p]
+    for _ in range(3):
+        q = dict(p)
+        for n in model.param_names:
+            lo, hi = model.bounds(n)
+            if model.param(n).log:
+                q[n] = float(np.exp(rng.uniform(np.log(max(lo, 1e-6 * hi)), np.log(hi))))
+            else:
+                q[n] = float(rng.uniform(lo, hi))
+        points.append(q)
+    for q in points:
+        for sensors in ({"ay": 0.0, "r": 0.0}, {"ay": 50.0, "r": 88.0}):
+            sys = model.build(q, 5.0, sensors)  # every output and input (the tyre iteration uses more)
+            law = SpeedLaw(system_parts(lambda v: model.build(q, v, sensors), sys.outputs, sys.inputs))
+            assert law.ok, (model.name, q, sensors)
 
 
 @pytest.mark.parametrize("name", sorted(available_effects()))

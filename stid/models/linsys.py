@@ -105,12 +105,19 @@ class LinSys:
         A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
         bk = self.B[:, [k]]
         dk = self.D[:, [k]]
-        A2 = np.block([[self.A, bk @ C], [np.zeros((m, n)), A]])
-        Bn = self.B.copy()
-        Bn[:, [k]] = bk @ D
-        B2 = np.vstack([Bn, np.zeros((m, len(self.inputs)))])
+        # preallocated blocks, not np.block/vstack: every simulation builds the model a few
+        # times, and this is most of a build
+        A2 = np.zeros((n + m, n + m))
+        A2[:n, :n] = self.A
+        A2[:n, n:] = bk @ C
+        A2[n:, n:] = A
+        B2 = np.zeros((n + m, len(self.inputs)))
+        B2[:n] = self.B
+        B2[:n, [k]] = bk @ D
         B2[n:, [k]] = B
-        C2 = np.hstack([self.C, dk @ C])
+        C2 = np.zeros((len(self.outputs), n + m))
+        C2[:, :n] = self.C
+        C2[:, n:] = dk @ C
         D2 = self.D.copy()
         D2[:, [k]] = dk @ D
         inputs = list(self.inputs)
@@ -125,13 +132,15 @@ class LinSys:
         A2 = np.zeros((n + m, n + m))
         A2[:n, :n] = self.A
         A2[n:, n:] = A_new
-        B2 = np.vstack([self.B, np.zeros((m, len(self.inputs)))])
+        B2 = np.zeros((n + m, len(self.inputs)))
+        B2[:n] = self.B
         for o, col in drive.items():
             col = np.asarray(col, float).reshape(m, 1)
             i = self.out(o)
             A2[n:, :n] += col @ self.C[[i], :]
             B2[n:, :] += col @ self.D[[i], :]
-        C2 = np.hstack([self.C, np.zeros((len(self.outputs), m))])
+        C2 = np.zeros((len(self.outputs), n + m))
+        C2[:, :n] = self.C
         return LinSys(A2, B2, C2, self.D.copy(), self.states + list(names), list(self.inputs),
                       list(self.outputs), dict(self.offsets))
 

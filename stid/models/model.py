@@ -62,6 +62,9 @@ class Model:
                 seen[p.name] = e.name
                 self.params.append(p)
         self._ordered = sorted(self.effects, key=lambda e: _STAGE_ORDER[e.stage])
+        # the catalogue's effects keep the single track's speed law (tests/test_effects_contract.py):
+        # the LPV simulator need not check it on every parameter set; a user's effect is checked
+        self._law_known = all(type(e).__module__.startswith("stid.effects.") for e in self.effects)
         self._warm: dict = {}  # last converged force correction per steer history (nonlinear effects)
         self._laws: dict = {}  # speed laws of the last few parameter sets (stid.models.lpv.SpeedLaw)
         self.converged = True
@@ -150,7 +153,7 @@ class Model:
         key = (tuple(sorted(p.items())), tuple(sorted((sensors or {}).items())), tuple(outputs), tuple(inputs))
         law = self._laws.get(key)
         if law is None:
-            law = SpeedLaw(system_parts(build, outputs, inputs))
+            law = SpeedLaw(system_parts(build, outputs, inputs), check=not self._law_known)
             if len(self._laws) >= 8:
                 self._laws.pop(next(iter(self._laws)))
             self._laws[key] = law
@@ -172,10 +175,12 @@ class Model:
         steers the optimiser away.
         """
         v = np.asarray(vx, float)
-        ctx = self.context(float(np.median(v)) if v.ndim else float(v))
-        for e in self._ordered:  # static steer maps (linkage geometry): exact, on the sampled signal
-            if e.maps_steer:
-                steer = e.steer_map(np.asarray(steer, float), p, ctx)
+        maps = [e for e in self._ordered if e.maps_steer]
+        # the context at the run's median speed is for the steer maps and the tyre forces only:
+        # a linear model without maps never needs it (the median costs as much as the build)
+        ctx = self.context(float(np.median(v)) if v.ndim else float(v)) if maps or self.nonlinear else None
+        for e in maps:  # static steer maps (linkage geometry): exact, on the sampled signal
+            steer = e.steer_map(np.asarray(steer, float), p, ctx)
         steer = np.asarray(steer, float)
         # the simulators hold the input first-order: the states are driven by samples whose
         # chords carry the band-limited signal (linsys.foh_input); an output that feeds the
