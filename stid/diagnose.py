@@ -436,7 +436,11 @@ def worker_pool():
     fits, the evidence's per-speed refits and the noise floor are independent, and run
     beside each other. Forked after the compiled simulator is loaded, so the workers
     share it instead of each loading it."""
-    if WORKERS < 2:
+    import multiprocessing
+
+    # a daemonic process (a worker of another pool, e.g. a Dask worker running `stid batch
+    # --diagnose`) may not start processes of its own: it fits everything itself
+    if WORKERS < 2 or multiprocessing.current_process().daemon:
         yield None
         return
     from concurrent.futures import ProcessPoolExecutor

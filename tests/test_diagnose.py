@@ -243,3 +243,20 @@ def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_ab
     for c in cands:
         if c.effect in ("locked_diff", "sensor_bias"):
             assert c.effect not in kept and c.why_not.startswith("screened out"), (c.effect, c.lr, c.gain)
+
+
+def _diagnose_in_a_worker(job):
+    paths, vehicle = job
+    (d,) = diagnose(load_runs(paths, vehicle), vehicle, "bicycle", candidates=["actuator_lag", "sensor_delay"])
+    return d.best.effect if d.best else None
+
+
+def test_diagnose_runs_inside_a_daemonic_worker(simdir, rc_vehicle):
+    """`stid batch --diagnose` on Dask, or a user's multiprocessing.Pool, runs diagnose in a
+    daemonic process, which may not start processes of its own: it fits everything itself
+    (it raised 'daemonic processes are not allowed to have children')."""
+    import multiprocessing
+
+    paths = random_steer_pair(simdir, ("actuator_lag",))
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.map(_diagnose_in_a_worker, [(paths, rc_vehicle)]) == ["actuator_lag"]
