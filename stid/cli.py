@@ -45,7 +45,6 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_fit(args) -> int:
-
     from stid.fit.fitting import fit
     from stid.progress import Progress
 
@@ -151,7 +150,6 @@ def _print_load_warnings(runs) -> None:
 
 
 def _cmd_diagnose(args) -> int:
-
     from stid.diagnose import diagnose
     from stid.present import diagnosis_text
     from stid.progress import Progress
@@ -171,7 +169,6 @@ def _cmd_diagnose(args) -> int:
 
 
 def _cmd_compare(args) -> int:
-
     from stid.compare import compare
     from stid.present import comparison_text
     from stid.progress import Progress
@@ -200,7 +197,6 @@ def _cmd_report(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-
     from stid.errors import InputError
     from stid.load import load_runs
     from stid.models.model import Model

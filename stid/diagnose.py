@@ -255,13 +255,10 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
     with no off value cannot be screened and is always fitted."""
     from scipy.optimize import lsq_linear
 
-    from stid.fit.time_fit import _keep, simulate
-
     sigma = np.asarray(base.extra.get("sigma", np.ones(2)), float)
-    keeps = [_keep(st, 0.5) for st in stretches]
 
     def resid(model, p):
-        return np.concatenate([((simulate(model, p, st)[k] - st.y[k]) / sigma) for st, k in zip(stretches, keeps)])
+        return _residuals(model, p, stretches, sigma)
 
     m0 = Model(model_name, vehicle)
     p0 = dict(base.all_params())
@@ -420,14 +417,16 @@ def _fit_one(args):
     return fit((), vehicle, m2.name, "time", stretches=stretches, init=best, multistart=False)
 
 
-def _cost(model, stretches, p, sigma, discard_s=0.5):
+def _residuals(model, p, stretches, sigma, discard_s=0.5) -> np.ndarray:
+    """The time-domain fit's residuals (n, 2) over the kept samples of every stretch,
+    each output divided by its ``sigma``: what the screen steps on and a start is judged by."""
     from stid.fit.time_fit import _keep, simulate
 
-    c = 0.0
-    for st in stretches:
-        k = _keep(st, discard_s)
-        c += float(np.sum(((simulate(model, p, st)[k] - st.y[k]) / sigma) ** 2))
-    return c
+    return np.concatenate([(simulate(model, p, st) - st.y)[_keep(st, discard_s)] / sigma for st in stretches])
+
+
+def _cost(model, stretches, p, sigma) -> float:
+    return float(np.sum(_residuals(model, p, stretches, sigma) ** 2))
 
 
 @contextlib.contextmanager

@@ -160,10 +160,11 @@ def load_vehicle(path) -> Vehicle:
     if not path.exists():
         raise InputError(f"vehicle file {path} does not exist")
     try:
-        if path.read_bytes()[:5] == b"\x89MCAP":  # the commonest slip: a run given as --vehicle
+        raw = path.read_bytes()
+        if raw[:5] == b"\x89MCAP":  # the commonest slip: a run given as --vehicle
             raise InputError(f"{path} is a logged run (MCAP), not a vehicle file: give the car's TOML file "
                              "with --vehicle (e.g. docs/examples/rc8.toml) and the runs before it")
-        doc = tomllib.loads(path.read_text())
+        doc = tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise InputError(f"vehicle file {path} is not valid TOML: {e}") from None
     where = f"vehicle file {path}"

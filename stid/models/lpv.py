@@ -14,12 +14,13 @@ samples, as in the constant-speed simulator). Discretising at every sample would
 cost a matrix exponential per sample, so the matrices are discretised on a
 geometric grid of speeds 2% apart (GRID_STEP) and interpolated linearly between
 grid points (the interpolation error is of order (2%)^2 / 8 of the speed dependence,
-far below the noise). The continuous matrices at the grid speeds come from four builds of
+far below the noise). The continuous matrices at the grid speeds come from three builds of
 the model: every entry of a single-track model with the catalogue's effects is of
-the form c0 + c1 vx + c2 / vx, which three builds determine and a fourth checks
-(once per parameter set: every stretch of an evaluation shares the law).
-A model for which the check fails (a user's effect with another speed law) is
-built at every grid speed instead: slower, never wrong.
+the form c0 + c1 vx + c2 / vx, which three builds determine (once per parameter set:
+every stretch of an evaluation shares the law; tests/test_effects_contract.py checks
+the law for every catalogue effect). A model with a user's effect gets a fourth build
+to check it, and where the check fails (another speed law) is built at every grid
+speed instead: slower, never wrong.
 
 The recursion itself is a compiled loop (numba): a time-varying system has no
 transfer function for scipy's filters, and a Python loop per sample would cost
@@ -159,22 +160,6 @@ def _batched_foh(A, B, dt):
     return F, G1 - G2, G2
 
 
-def _speed_law(mats: list, speeds, V_inv=None) -> np.ndarray | None:
-    """Coefficients (c0, c1, c2) with X(v) = c0 + c1 v + c2 / v from builds at the first
-    three speeds, or None when the fourth build does not follow that law."""
-    if V_inv is None:
-        v = np.asarray(speeds[:3], float)
-        V_inv = np.linalg.inv(np.column_stack([np.ones(3), v, 1.0 / v]))
-    X = np.stack([m.ravel() for m in mats[:3]])
-    coef = V_inv @ X
-    v4 = float(speeds[3])
-    pred = coef[0] + coef[1] * v4 + coef[2] / v4
-    scale = max(float(np.max(np.abs(X))), 1e-300)
-    if np.max(np.abs(pred - mats[3].ravel())) > 1e-9 * scale:
-        return None
-    return coef
-
-
 PROBE_SPEEDS = (1.0, 3.0, 9.0, 4.7)  # m/s: three determine the speed law, the fourth checks it
 
 
@@ -196,13 +181,14 @@ class SpeedLaw:
         self.shapes = [b.shape for b in built[0]]
         self.coef = []
         for j in range(len(self.shapes)):
-            if not check:
-                self.coef.append(self._V_INV @ np.stack([b[j].ravel() for b in built]))
-                continue
-            c = _speed_law([b[j] for b in built], PROBE_SPEEDS, self._V_INV)
-            if c is None:
-                self.coef = None
-                break
+            X = np.stack([b[j].ravel() for b in built[:3]])
+            c = self._V_INV @ X  # (c0, c1, c2) of every entry
+            if check:
+                v4 = PROBE_SPEEDS[3]
+                off = np.max(np.abs(c[0] + c[1] * v4 + c[2] / v4 - built[3][j].ravel()), initial=0.0)
+                if off > 1e-9 * max(float(np.max(np.abs(X), initial=0.0)), 1e-300):
+                    self.coef = None
+                    break
             self.coef.append(c)
         self.ok = self.coef is not None
 
