@@ -52,6 +52,9 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     if path.suffix.lower() == ".mcap":
         raise InputError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic at its start): "
                          "corrupted, or not written by stid-log")
+    if path.suffix.lower() == ".toml":  # the mirror of a run given as --vehicle
+        raise InputError(f"{path} is a vehicle file, not a run: give the runs (RUN.mcap or RUN.csv) first and "
+                         "the vehicle file after --vehicle")
     run = load_csv(path)
     run.meta["sensor_chain"] = sensor_chain.from_vehicle(vehicle)
     return [run]

@@ -159,6 +159,9 @@ def load_vehicle(path) -> Vehicle:
     path = Path(path)
     if not path.exists():
         raise InputError(f"vehicle file {path} does not exist")
+    if path.is_dir():
+        raise InputError(f"vehicle file {path} is a directory: give the car's TOML file (e.g. "
+                         "docs/examples/rc8.toml)")
     try:
         raw = path.read_bytes()
         if raw[:5] == b"\x89MCAP":  # the commonest slip: a run given as --vehicle

@@ -162,6 +162,17 @@ def vehicle_error(tmp_path, text):
     return str(e.value)
 
 
+def test_files_in_each_others_places_are_named(tmp_path):
+    """A directory as --vehicle, and the vehicle file given as a run: one line each saying
+    which is which (they were 'Is a directory' with exit 1, and a CSV tokenizer's error)."""
+    with pytest.raises(InputError, match="is a directory: give the car's TOML file"):
+        load_vehicle(tmp_path)
+    from stid.load import load_file
+
+    with pytest.raises(InputError, match="is a vehicle file, not a run"):
+        load_file(VEHICLE)
+
+
 def test_misspelt_key_is_named_with_the_nearest_known_key(tmp_path):
     msg = vehicle_error(tmp_path, 'name = "car"\nmass_kg = 9.31\na = 0.2326\nb = 0.2874\n')
     assert "mass_kg" in msg and "did you mean 'mass'" in msg, msg
