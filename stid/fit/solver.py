@@ -84,21 +84,27 @@ def starting_points(model, space: ParamSpace, p0: dict, multistart: bool) -> lis
 
 
 # Residuals scaled to unit noise: a solve stops once the cost it can still lose is below
-# this, half the square of a tenth of a standard error (of white noise; the intervals a fit
-# reports are wider, its residuals being coloured). Closer than that to the optimum moves no
-# reported figure; scipy's relative ftol (1e-8) asks for 1e-4 of cost on 10^4 samples, and on
-# a model that misses an effect Gauss-Newton approaches it only linearly (the residuals are
-# large), so the last half of a solve was spent there.
+# this, half the square of a tenth of a standard error. Closer than that to the optimum moves
+# no reported figure; scipy's relative ftol (1e-8) asks for 1e-4 of cost on 10^4 samples, and
+# on a model that misses an effect Gauss-Newton approaches it only linearly (the residuals are
+# large), so the last half of a solve was spent there. Coloured residuals (integrated
+# autocorrelation time tau samples) carry 1/tau of the information of white ones: a standard
+# error is sqrt(tau) times the white one, and the cost to lose may be tau times this.
 SETTLED_COST = 0.5 * 0.1 ** 2
 
 
-def settled(tol: float = SETTLED_COST):
+def settled(tol: float = SETTLED_COST, initial=None):
     """A callback for scipy's trf that stops the solve when the cost still to lose is below
     ``tol``, estimated from the last three reductions as a geometric series (the slower of
-    the last two ratios, so one lucky step does not end it)."""
+    the last two ratios, so one lucky step does not end it). ``initial()``: the cost at the
+    start, which scipy does not report: with it the first three iterations can settle a
+    solve (else a solve that starts near its optimum takes a fourth, in which the trust
+    region shrinks step after step because no step can lower the cost any more)."""
     costs = []
 
     def callback(intermediate_result):
+        if not costs and initial is not None:
+            costs.append(float(initial()))
         costs.append(float(intermediate_result.cost))
         if len(costs) < 4:
             return
@@ -112,23 +118,90 @@ def settled(tol: float = SETTLED_COST):
     return callback
 
 
-def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = False, **kw):
+_REL_STEP = float(np.sqrt(np.finfo(float).eps))  # scipy's '2-point' relative step
+
+
+class _Residuals:
+    """The residual vector of x for scipy's solver, with its forward-difference Jacobian
+    taken as scipy's '2-point' takes it (the same steps, one-sided, turned back at a
+    bound). Owning the Jacobian lets a solve start from a point whose residuals and
+    Jacobian are known already (``known``: a re-weighted solve continues where the
+    previous one ended, and scipy would compute both again: n + 1 simulations)."""
+
+    def __init__(self, residual, space: ParamSpace, lo, hi, diff_step=None, known=None):
+        self.residual, self.space, self.lo, self.hi = residual, space, lo, hi
+        self.diff_step = diff_step
+        self.known = known
+        self.last = None  # (x, f) of the newest evaluation: the differences start from it
+        self.first_cost = None  # at the start (the stopping rule's first term)
+
+    def fun(self, x):
+        if self.known is not None and np.array_equal(x, self.known[0]):
+            f = self.known[1]
+        else:
+            f = np.asarray(self.residual(self.space.to_p(x)), float)
+        self.last = (np.array(x, float), f)
+        if self.first_cost is None:
+            self.first_cost = 0.5 * float(f @ f)
+        return f
+
+    def jac(self, x):
+        if self.known is not None and np.array_equal(x, self.known[0]):
+            return self.known[2]
+        if self.last is None or not np.array_equal(self.last[0], x):
+            self.fun(x)
+        f0 = self.last[1]
+        h = self._steps(x)
+        J = np.empty((f0.size, x.size))
+        for i in range(x.size):
+            x1 = x.copy()
+            x1[i] = x[i] + h[i]
+            J[:, i] = (self.residual(self.space.to_p(x1)) - f0) / (x1[i] - x[i])
+        self.last = (np.array(x, float), f0)
+        return J
+
+    def _steps(self, x):
+        """scipy.optimize._numdiff's absolute steps for '2-point' within the bounds."""
+        sign = np.where(x >= 0, 1.0, -1.0)
+        if self.diff_step is None:
+            h = _REL_STEP * sign * np.maximum(1.0, np.abs(x))
+        else:
+            h = self.diff_step * sign * np.abs(x)
+            h = np.where((x + h) - x == 0, _REL_STEP * sign * np.maximum(1.0, np.abs(x)), h)
+        lower, upper = x - self.lo, self.hi - x
+        out = (x + h < self.lo) | (x + h > self.hi)
+        fits = np.abs(h) <= np.maximum(lower, upper)
+        h = np.where(out & fits, -h, h)
+        return np.where(fits, h, np.where(upper >= lower, upper, -lower))
+
+
+def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = False, known=None,
+                  colour: float = 1.0, **kw):
     """Run scipy's bounded trust-region least squares from each start; keep the best.
     ``unit_noise``: the residuals are scaled to unit noise, so the solve may stop once
-    it is statistically at the optimum (SETTLED_COST)."""
+    it is statistically at the optimum (SETTLED_COST), in standard errors of residuals
+    whose integrated autocorrelation time is ``colour`` samples. ``known``: (x, residuals,
+    Jacobian) at the first start, in the solver's coordinates, when the caller has them."""
     lo, hi = space.bounds_x()
+    diff_step = None
     if getattr(space.model, "nonlinear", False):
         # an iterated simulation is exact only to its tolerance: difference over a step
         # large enough that the tolerance does not show in the Jacobian
-        kw.setdefault("diff_step", 1e-5)
+        diff_step = kw.pop("diff_step", 1e-5)
     best = None
-    for p0 in starts:
+    for k, p0 in enumerate(starts):
         x0 = np.clip(space.to_x(p0), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        start_known = None
+        if k == 0 and known is not None and np.allclose(known[0], x0, rtol=1e-12, atol=1e-12):
+            # the same point (up to the round trip through physical units): start exactly there
+            x0 = start_known = np.array(known[0], float)
+        prob = _Residuals(residual, space, lo, hi, diff_step,
+                          (x0, known[1], known[2]) if start_known is not None else None)
         if unit_noise:
-            kw["callback"] = settled()
+            kw["callback"] = settled(SETTLED_COST * max(float(colour), 1.0), initial=lambda: prob.first_cost)
         try:
-            res = optimize.least_squares(lambda x: residual(space.to_p(x)), x0, bounds=(lo, hi),
-                                         method="trf", x_scale="jac", **kw)
+            res = optimize.least_squares(prob.fun, x0, jac=prob.jac, bounds=(lo, hi), method="trf",
+                                         x_scale="jac", **kw)
         except (np.linalg.LinAlgError, ValueError) as e:
             raise InputError(f"the fit failed numerically ({e}); check the data for outliers") from None
         if best is None or res.cost < best.cost:

@@ -19,7 +19,7 @@ from stid.fit.result import FitResult, Prediction, fit_percent
 from stid.fit.solver import ParamSpace, starting_points, covariance_sandwich, least_squares, to_physical
 from stid.fit import checks
 from stid.fit import intervals as jk
-from stid.stats import SCORE_FROM_S
+from stid.stats import SCORE_FROM_S, tau_int
 
 OUTPUTS = ("ay", "r")
 
@@ -73,10 +73,18 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once
     if reweight:
-        r_now = residual(p_hat, np.ones(2)).reshape(-1, 2)
-        sigma = np.std(r_now, axis=0)
-        sigma = np.where(sigma > 0, sigma, 1.0)
-        res = least_squares(lambda p: residual(p, sigma), space, [p_hat], unit_noise=True)
+        r_now = res.fun.reshape(-1, 2) * sigma  # the residuals at p_hat, unweighted
+        new_sigma = np.std(r_now, axis=0)
+        new_sigma = np.where(new_sigma > 0, new_sigma, 1.0)
+        # the refined solve starts where this one ended: its residuals and Jacobian are these,
+        # each output's rows rescaled to the new weights
+        rescale = sigma / new_sigma
+        n_free = len(res.x)
+        known = (res.x, (res.fun.reshape(-1, 2) * rescale).ravel(),
+                 (res.jac.reshape(-1, 2, n_free) * rescale[None, :, None]).reshape(-1, n_free))
+        sigma = new_sigma
+        res = least_squares(lambda p: residual(p, sigma), space, [p_hat], unit_noise=True, known=known,
+                            colour=_colour(r_now, keeps, stretches[0].dt))
         p_hat = space.to_p(res.x)
     if whiten:
         # prediction-error refinement: an AR model of each output's residual colour, then
@@ -153,6 +161,21 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
 
 
 AR_ORDER = 12
+
+
+def _colour(r: np.ndarray, keeps: list, dt: float, max_lag_s: float = 0.5) -> float:
+    """The residuals' integrated autocorrelation time [samples], the whiter output's (the
+    smaller: the stricter stopping rule), averaged over the stretches by length as
+    stid.analysis.residuals does it. ``r``: (n, 2), the kept samples of every stretch in turn."""
+    L = max(2, int(max_lag_s / dt))
+    taus, n_tot, pos = np.zeros(2), 0, 0
+    for k in keeps:
+        n = int(k.sum())
+        block, pos = r[pos:pos + n], pos + n
+        if n > 2 * L:
+            taus += n * np.array([tau_int(block[:, j], L) for j in range(2)])
+            n_tot += n
+    return float(taus.min() / n_tot) if n_tot else 1.0
 
 
 def _sandwich(J: np.ndarray, r: np.ndarray, keeps: list) -> np.ndarray:
