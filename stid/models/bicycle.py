@@ -93,10 +93,14 @@ def bicycle(p: dict, ctx: Context, sigma_f: float | None = None, sigma_r: float 
         A[3] = kr * Cr * ar_x
         A[3, 3] -= kr
         B[3] = [0.0, 0.0, kr]
-    e_r = np.zeros(n)
-    e_r[1] = 1.0
-    e_vy = np.zeros(n)
-    e_vy[0] = 1.0
-    C = np.vstack([ay_x, e_r, A[1], ay_x, af_x, ar_x, e_vy])
-    D = np.vstack([ay_u, np.zeros(3), B[1], ay_u, [af_u, 0, 0], [ar_u, 0, 0], np.zeros(3)])
+    # rows in the order of OUTPUTS: ay, r, r_dot, ay_cg, alpha_f, alpha_r, vy
+    C = np.zeros((len(OUTPUTS), n))
+    D = np.zeros((len(OUTPUTS), 3))
+    C[0] = C[3] = ay_x
+    D[0] = D[3] = ay_u
+    C[1, 1] = 1.0
+    C[2], D[2] = A[1], B[1]
+    C[4], D[4, 0] = af_x, af_u
+    C[5], D[5, 0] = ar_x, ar_u
+    C[6, 0] = 1.0
     return LinSys(A, B, C, D, states, ["delta", "dFf", "dFr"], list(OUTPUTS))

@@ -76,6 +76,12 @@ def _steady_zi(num, den):
     return np.cumsum(d[::-1])[::-1][1:]
 
 
+def _matrix(x) -> np.ndarray:
+    """A float 2-D array of x (a nested list or an array)."""
+    a = np.asarray(x, dtype=float)
+    return a if a.ndim == 2 else np.atleast_2d(a)
+
+
 @dataclass
 class LinSys:
     A: np.ndarray
@@ -102,24 +108,24 @@ class LinSys:
         """Feed input ``name`` from a SISO block (A, B, C, D) whose input is ``new_input``."""
         k = self.inp(name)
         n, m = len(self.states), len(states)
-        A, B, C, D = (np.atleast_2d(np.asarray(x, float)) for x in (A, B, C, D))
-        bk = self.B[:, [k]]
-        dk = self.D[:, [k]]
+        A, B, C, D = (_matrix(x) for x in (A, B, C, D))
+        bk = self.B[:, k:k + 1]
+        dk = self.D[:, k:k + 1]
         # preallocated blocks, not np.block/vstack: every simulation builds the model a few
         # times, and this is most of a build
         A2 = np.zeros((n + m, n + m))
         A2[:n, :n] = self.A
-        A2[:n, n:] = bk @ C
+        A2[:n, n:] = bk * C  # (n, 1) x (1, m): an outer product
         A2[n:, n:] = A
         B2 = np.zeros((n + m, len(self.inputs)))
         B2[:n] = self.B
-        B2[:n, [k]] = bk @ D
-        B2[n:, [k]] = B
+        B2[:n, k] = bk[:, 0] * D[0, 0]
+        B2[n:, k] = B[:, 0]
         C2 = np.zeros((len(self.outputs), n + m))
         C2[:, :n] = self.C
-        C2[:, n:] = dk @ C
+        C2[:, n:] = dk * C
         D2 = self.D.copy()
-        D2[:, [k]] = dk @ D
+        D2[:, k] = dk[:, 0] * D[0, 0]
         inputs = list(self.inputs)
         inputs[k] = new_input
         return LinSys(A2, B2, C2, D2, self.states + list(states), inputs, list(self.outputs), dict(self.offsets))
@@ -128,17 +134,16 @@ class LinSys:
         """Append states x_new with x_new' = A_new x_new + sum_o drive[o] * y_o,
         where y_o are outputs of this system (column vectors)."""
         n, m = len(self.states), len(names)
-        A_new = np.atleast_2d(np.asarray(A_new, float))
         A2 = np.zeros((n + m, n + m))
         A2[:n, :n] = self.A
-        A2[n:, n:] = A_new
+        A2[n:, n:] = _matrix(A_new)
         B2 = np.zeros((n + m, len(self.inputs)))
         B2[:n] = self.B
         for o, col in drive.items():
             col = np.asarray(col, float).reshape(m, 1)
             i = self.out(o)
-            A2[n:, :n] += col @ self.C[[i], :]
-            B2[n:, :] += col @ self.D[[i], :]
+            A2[n:, :n] += col * self.C[i]
+            B2[n:, :] += col * self.D[i]
         C2 = np.zeros((len(self.outputs), n + m))
         C2[:, :n] = self.C
         return LinSys(A2, B2, C2, self.D.copy(), self.states + list(names), list(self.inputs),
@@ -156,15 +161,27 @@ class LinSys:
             self.C[t, self.states.index(state)] += gain
 
     def filter_output(self, name: str, f_hz: float) -> "LinSys":
-        """Pass output ``name`` through a first-order low-pass at f_hz (a sensor's bandwidth)."""
+        """Pass output ``name`` through a first-order low-pass at f_hz (a sensor's bandwidth):
+        a state x' = w (y - x) that replaces the output. (add_states, written out: every
+        simulation builds the model with its two sensor filters a few times.)"""
         w = 2 * np.pi * f_hz
-        st = f"filt_{name}"
-        sys = self.add_states([st], [[-w]], {name: [w]})
-        i = sys.out(name)
-        sys.C[i, :] = 0.0
-        sys.C[i, sys.states.index(st)] = 1.0
-        sys.D[i, :] = 0.0
-        return sys
+        i = self.out(name)
+        n = len(self.states)
+        A2 = np.zeros((n + 1, n + 1))
+        A2[:n, :n] = self.A
+        A2[n, :n] = w * self.C[i]
+        A2[n, n] = -w
+        B2 = np.zeros((n + 1, len(self.inputs)))
+        B2[:n] = self.B
+        B2[n] = w * self.D[i]
+        C2 = np.zeros((len(self.outputs), n + 1))
+        C2[:, :n] = self.C
+        C2[i, :] = 0.0
+        C2[i, n] = 1.0
+        D2 = self.D.copy()
+        D2[i, :] = 0.0
+        return LinSys(A2, B2, C2, D2, self.states + [f"filt_{name}"], list(self.inputs), list(self.outputs),
+                      dict(self.offsets))
 
     def select(self, outputs) -> "LinSys":
         idx = [self.out(o) for o in outputs]
