@@ -51,11 +51,16 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         reweight = False  # the caller fixes the weights (a candidate compared with its base)
     sigma = np.where(np.asarray(sigma) > 0, sigma, 1.0)
 
+    ends = np.cumsum([int(k.sum()) for k in keeps])
+
     def residual(p, sig):
-        out = []
-        for st, k, y in zip(stretches, keeps, ys):
-            out.append(((simulate(model, p, st)[k] - y) / sig).ravel())
-        return np.concatenate(out)
+        # written into one array (hundreds of evaluations per fit): (n, 2) rows of every
+        # stretch's kept samples in turn, each output divided by its sigma
+        out = np.empty((int(ends[-1]) if len(ends) else 0, 2))
+        for st, k, y, a, b in zip(stretches, keeps, ys, np.r_[0, ends[:-1]], ends):
+            np.subtract(simulate(model, p, st)[k], y, out=out[a:b])
+        out /= sig
+        return out.ravel()
 
     if space is None:
         free = [n for n in model.param_names if n not in fixed]
