@@ -67,6 +67,43 @@ def swinging(t):
     return 5.0 * (1 + 0.25 * np.sin(2 * np.pi * t / 7.0))
 
 
+_LEAN_LOAD_SCRIPT = r"""
+import json, numpy as np
+from numba import njit
+from stid.models import lpv
+lpv.load_compiled()
+ctx = lpv._ltv_run.targetctx
+rng = np.random.default_rng(0)
+L, n, m, ny, N = 5, 4, 1, 2, 400
+F = 0.3 * rng.normal(size=(L, n, n)); G0 = rng.normal(size=(L, n, m)); G1 = rng.normal(size=(L, n, m))
+C = rng.normal(size=(L, ny, n)); D = rng.normal(size=(L, ny, m)); off = rng.normal(size=(L, ny))
+idx = rng.integers(0, L - 1, N).astype(np.int64); w = rng.random(N); u = rng.normal(size=(N, m))
+args = (F, G0, G1, C, D, off, idx, w, idx, w, u, u, rng.normal(size=n))
+compiled, plain = lpv._ltv_run(*args), lpv._ltv_run.py_func(*args)
+
+@njit
+def later(x):  # numba compiles something new after the lean load: its own refresh must work
+    return np.sum(np.sin(x)) + x.shape[0]
+
+print(json.dumps({"diff": float(np.max(np.abs(compiled - plain))), "left": "refresh" in vars(ctx),
+                  "later": float(later(np.ones(3))), "expect": float(np.sum(np.sin(np.ones(3))) + 3)}))
+"""
+
+
+def test_the_compiled_recursion_loads_without_the_whole_compiler_and_numba_still_compiles():
+    """stid.models.lpv.load_compiled cuts numba's refresh before a cache lookup to the
+    runtime's start: in a fresh process (twice: the first may compile and fill the cache,
+    the second loads from it) the recursion equals its Python original, the cut refresh
+    is gone afterwards, and numba compiles a new function as usual."""
+    for _ in range(2):
+        out = subprocess.run([sys.executable, "-c", _LEAN_LOAD_SCRIPT], capture_output=True, text=True,
+                             timeout=300)
+        assert out.returncode == 0, out.stderr
+        got = json.loads(out.stdout)
+        assert got["diff"] < 1e-12 and not got["left"], got
+        assert got["later"] == pytest.approx(got["expect"], rel=1e-14)
+
+
 def write_csv(path, cols):
     names = list(cols)
     with open(path, "w") as f:

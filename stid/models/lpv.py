@@ -29,6 +29,8 @@ a second per evaluation.
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 from numba import njit
 from scipy import linalg
@@ -81,13 +83,54 @@ def _ltv_run(F, G0, G1, C, D, off, idx, w, idx_s, w_s, u, uo, x0):  # pragma: no
     return y
 
 
+_LOADED = False
+# numba versions on which a cache lookup was checked to need nothing of the compiler's
+# refresh but the runtime (tests/test_track_runs.py runs it in a fresh process)
+_LEAN_LOAD_CHECKED = {(0, 68)}
+
+
 def load_compiled() -> None:
     """Load the compiled recursion now (from numba's cache, or compile it): a process
-    that forks workers afterwards hands it to them instead of each loading it again."""
+    that forks workers afterwards hands it to them instead of each loading it again.
+
+    Before it looks in its cache numba refreshes its whole compiler: it imports and
+    installs every typing and lowering registry (0.2-0.25 s here; numba/numba#7516 on
+    that cost), though machine code from the cache needs only numba's runtime. On the
+    numba versions in _LEAN_LOAD_CHECKED that one refresh is cut to the runtime's start
+    (the whole load then takes 0.05 s). A cache miss still compiles with numba's own
+    refresh (the cut refresh removes itself when first called), and so does anything
+    numba compiles later in the process."""
+    global _LOADED
+    if _LOADED:
+        return
     z = np.zeros((2, 1, 1))
     i = np.zeros(1, np.int64)
-    _ltv_run(z, z, z, z, z, np.zeros((2, 1)), i, np.zeros(1), i, np.zeros(1), np.zeros((1, 1)),
-             np.zeros((1, 1)), np.zeros(1))
+    with _lean_cache_lookup():
+        _ltv_run(z, z, z, z, z, np.zeros((2, 1)), i, np.zeros(1), i, np.zeros(1), np.zeros((1, 1)),
+                 np.zeros((1, 1)), np.zeros(1))
+    _LOADED = True
+
+
+@contextlib.contextmanager
+def _lean_cache_lookup():
+    import numba
+
+    ctx = getattr(_ltv_run, "targetctx", None)
+    version = tuple(int(v) for v in numba.__version__.split(".")[:2] if v.isdigit())
+    if ctx is None or version not in _LEAN_LOAD_CHECKED or "refresh" in vars(ctx):
+        yield
+        return
+    from numba.core.runtime import rtsys
+
+    def refresh_once():
+        del ctx.refresh  # from now on numba's own, for anything it compiles
+        rtsys.initialize(ctx)  # the runtime the cached code allocates its arrays with
+
+    ctx.refresh = refresh_once
+    try:
+        yield
+    finally:
+        vars(ctx).pop("refresh", None)
 
 
 _GRIDS: dict = {}  # speed series -> its grid: a fit simulates the same stretches hundreds of times
@@ -304,6 +347,8 @@ class LpvSimulator:
         u = self._shape(u)
         uo = u if u_out is None else self._shape(u_out)
         x0 = self.x_unit @ u[0]
+        if not _LOADED:
+            load_compiled()
         return _ltv_run(self.F, self.G0, self.G1, self.C, self.D, self.off, self.idx, self.w,
                         self.idx_s, self.w_s, u, uo, x0)
 
