@@ -79,7 +79,15 @@ F = 0.3 * rng.normal(size=(L, n, n)); G0 = rng.normal(size=(L, n, m)); G1 = rng.
 C = rng.normal(size=(L, ny, n)); D = rng.normal(size=(L, ny, m)); off = rng.normal(size=(L, ny))
 idx = rng.integers(0, L - 1, N).astype(np.int64); w = rng.random(N); u = rng.normal(size=(N, m))
 args = (F, G0, G1, C, D, off, idx, w, idx, w, u, u, rng.normal(size=n))
-compiled, plain = lpv._ltv_run(*args), lpv._ltv_run.py_func(*args)
+compiled = lpv._ltv_run(*args)
+plain = np.empty((N, ny))  # the recursion written out densely, matrices interpolated per sample
+x = args[-1].copy()
+for k in range(N):
+    i, a = idx[k], w[k]
+    lerp = lambda M: (1 - a) * M[i] + a * M[i + 1]
+    plain[k] = lerp(C) @ x + lerp(D) @ u[k] + lerp(off)
+    if k + 1 < N:
+        x = lerp(F) @ x + lerp(G0) @ u[k] + lerp(G1) @ u[k + 1]
 
 @njit
 def later(x):  # numba compiles something new after the lean load: its own refresh must work
@@ -93,8 +101,8 @@ print(json.dumps({"diff": float(np.max(np.abs(compiled - plain))), "left": "refr
 def test_the_compiled_recursion_loads_without_the_whole_compiler_and_numba_still_compiles():
     """stid.models.lpv.load_compiled cuts numba's refresh before a cache lookup to the
     runtime's start: in a fresh process (twice: the first may compile and fill the cache,
-    the second loads from it) the recursion equals its Python original, the cut refresh
-    is gone afterwards, and numba compiles a new function as usual."""
+    the second loads from it) the recursion equals the dense one written out here, the cut
+    refresh is gone afterwards, and numba compiles a new function as usual."""
     for _ in range(2):
         out = subprocess.run([sys.executable, "-c", _LEAN_LOAD_SCRIPT], capture_output=True, text=True,
                              timeout=300)
