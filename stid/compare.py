@@ -68,18 +68,30 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
     """Fit each model to ``runs``; with ``validate`` (other runs) judge every number on those,
     the parameters held at the fit's."""
     from stid.analysis.noise_floor import noise_floor_uncertainty
-    from stid.analysis.residuals import analyse
     from stid.fit import dataset
-    from stid.fit.fitting import fit
     from stid.models.model import Model
-    from stid.fit.validate import judge_on
+    from stid.workers import worker_pool
 
     for name in models:
         Model(name, vehicle)  # names checked before any data work
     stretches = dataset.dynamic_stretches(runs) if method == "time" else None
     held = dataset.dynamic_stretches(validate) if validate else None
-    floor, floor_se = noise_floor_uncertainty(held if held is not None else
-                                              (stretches if stretches is not None else dataset.dynamic_stretches(runs)))
+    judged_on = held if held is not None else (stretches if stretches is not None else dataset.dynamic_stretches(runs))
+    with worker_pool(1) as pool:  # the noise floor needs only the data: on the other core, beside the fits
+        floor = pool.submit(noise_floor_uncertainty, judged_on) if pool else None
+        entries = _fit_each(runs, vehicle, models, method, progress, validate, stretches, held)
+        floor, floor_se = floor.result() if floor is not None else noise_floor_uncertainty(judged_on)
+    for e in entries:
+        e["noise_floor"], e["noise_floor_stderr"] = floor, floor_se
+    return entries
+
+
+def _fit_each(runs, vehicle, models, method, progress, validate, stretches, held) -> list[dict]:
+    from stid.analysis.residuals import analyse
+    from stid.fit.fitting import fit
+    from stid.fit.validate import judge_on
+    from stid.models.model import Model
+
     entries = []
     for name in models:
         if progress:
@@ -93,7 +105,6 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
             "validated_on": [r.name for r in validate] if validate else None,
             "params": {n: {"value": float(v), "stderr": float(se), "ci95": [float(lo), float(hi)], "unit": res.units[n]}
                        for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95)},
-            "noise_floor": floor, "noise_floor_stderr": floor_se,
             "white": {o: ra.white(o) for o in OUTS},
             "independent": {o: ra.independent(o) for o in OUTS},
             "by_band": bd.by_band, "by_ay": bd.by_ay, "by_run": bd.by_run, "warnings": res.warnings,

@@ -30,15 +30,14 @@ round with the winner added until nothing is named.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.special import chdtrc, chdtri  # chi-square survival function and its inverse (scipy.stats costs 0.4 s to import)
 
+from stid import workers
 from stid.analysis.evidence import check_evidence
 from stid.analysis.noise_floor import noise_floor_uncertainty
 from stid.analysis.residuals import analyse
@@ -52,7 +51,7 @@ ALPHA = 0.01
 MIN_GAIN = 0.5  # fit points
 GAP_FRACTION = 0.25
 OUTS = ("ay", "r")
-WORKERS = min(2, os.cpu_count() or 1)
+WORKERS = workers.WORKERS
 
 
 def p_in_words(p: float, level: float) -> str:
@@ -429,26 +428,14 @@ def _cost(model, stretches, p, sigma) -> float:
     return float(np.sum(_residuals(model, p, stretches, sigma) ** 2))
 
 
-@contextlib.contextmanager
 def worker_pool():
     """Worker processes for one diagnose (None on a one-core machine): the candidates'
     fits, the evidence's per-speed refits and the noise floor are independent, and run
     beside each other. Forked after the compiled simulator is loaded, so the workers
     share it instead of each loading it."""
-    import multiprocessing
-
-    # a daemonic process (a worker of another pool, e.g. a Dask worker running `stid batch
-    # --diagnose`) may not start processes of its own: it fits everything itself
-    if WORKERS < 2 or multiprocessing.current_process().daemon:
-        yield None
-        return
-    from concurrent.futures import ProcessPoolExecutor
-
     from stid.models.lpv import load_compiled
 
-    load_compiled()
-    with ProcessPoolExecutor(max_workers=WORKERS) as ex:
-        yield ex
+    return workers.worker_pool(WORKERS if WORKERS > 1 else 0, before_fork=load_compiled)
 
 
 def _in_workers(model_name: str) -> bool:
