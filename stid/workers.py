@@ -24,5 +24,22 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
 
     if before_fork is not None:
         before_fork()
-    with ProcessPoolExecutor(max_workers=workers) as ex:
+    ex = ProcessPoolExecutor(max_workers=workers, initializer=_leave_interrupts_to_the_command)
+    try:
         yield ex
+    except BaseException:
+        # interrupted (Ctrl-C) or failed: what the workers are doing is of no use any more
+        procs = getattr(ex, "_processes", None) or {}  # (the executor has no public way to stop them)
+        for proc in list(procs.values()):
+            proc.terminate()
+        ex.shutdown(wait=True, cancel_futures=True)
+        raise
+    ex.shutdown(wait=True)
+
+
+def _leave_interrupts_to_the_command():
+    """Ctrl-C reaches every process of the group: a worker ignores it (else each prints its
+    own traceback) and the command, which gets it too, ends the workers and says so."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
