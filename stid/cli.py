@@ -78,12 +78,12 @@ def _validation_runs(args, vehicle):
     from pathlib import Path
 
     from stid.errors import InputError
-    from stid.load import load_runs
+    from stid.load import load_runs, same_data
 
-    both = {Path(p).resolve() for p in args.validate} & {Path(p).resolve() for p in args.runs}
+    both = same_data(list(args.validate), list(args.runs))  # the same file, or a copy of one
     if both:
-        raise InputError(f"--validate {', '.join(sorted(p.name for p in both))}: also a run fitted to; judge on "
-                         "runs the fit did not see (give them only after --validate)")
+        raise InputError(f"--validate {', '.join(sorted({Path(a).name for a, _ in both}))}: the same data as a run "
+                         "fitted to; judge on runs the fit did not see (give them only after --validate)")
     held = load_runs(args.validate, vehicle)
     _print_load_warnings(held)
     return held
@@ -129,7 +129,8 @@ def _floor_line(res, floor, se, args) -> str:
         return "  " + floor_words(floor)
     short = {o: floor[o] - res.fit[o] for o in res.fit
              if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
-    text = ("  noise floor (what a correct model reaches on this data): "
+    on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"
+    text = (f"  noise floor (what a correct model reaches {on}): "
             + "   ".join(f"{o} {floor[o]:.1f}%" for o in floor))
     if short:
         import shlex
@@ -192,7 +193,7 @@ def _cmd_compare(args) -> int:
     if args.json:
         print(_json({"models": [{k: v for k, v in e.items() if not k.startswith("_")} for e in entries]}))
     else:
-        print(comparison_text(entries))
+        print(comparison_text(entries, args.runs, args.vehicle))
     return 0
 
 

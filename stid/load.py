@@ -31,10 +31,51 @@ PLAUSIBLE = {"steer": (1.0, "rad (road-wheel angle; 1 rad is 57 deg)"),
 
 
 def load_runs(paths, vehicle: Vehicle | None = None) -> list[Run]:
+    paths = list(paths)
+    twice = same_data(paths)
+    if twice:
+        a, b = twice[0]
+        raise InputError(f"{a} and {b} hold the same data ({'the same file' if _one_file(a, b) else 'a copy'}): a "
+                         "run given twice counts twice, and its intervals come out too narrow; give each run once")
     runs = []
     for p in paths:
         runs.extend(load_file(p, vehicle))
     return runs
+
+
+def same_data(paths, others=()) -> list[tuple]:
+    """Pairs of files that hold the same bytes (one file named twice, or a copy), among
+    ``paths`` or, with ``others``, between ``paths`` and ``others``. Only files of equal size
+    are read."""
+    import hashlib
+
+    def key(p):
+        try:
+            return Path(p).stat().st_size
+        except OSError:  # a missing file: the loader says so
+            return None
+
+    digests: dict = {}
+
+    def digest(p):
+        if p not in digests:
+            digests[p] = hashlib.sha1(Path(p).read_bytes()).digest()
+        return digests[p]
+
+    pairs = []
+    candidates = [(a, b) for i, a in enumerate(paths) for b in (others if others else paths[i + 1:])]
+    for a, b in candidates:
+        ka, kb = key(a), key(b)
+        if ka is not None and ka == kb and not Path(a).is_dir() and (_one_file(a, b) or digest(a) == digest(b)):
+            pairs.append((a, b))
+    return pairs
+
+
+def _one_file(a, b) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve() or Path(a).samefile(b)
+    except OSError:
+        return False
 
 
 def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:

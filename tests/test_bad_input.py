@@ -173,6 +173,27 @@ def test_files_in_each_others_places_are_named(tmp_path):
         load_file(VEHICLE)
 
 
+def test_a_run_given_twice_is_refused_not_counted_twice(tmp_path, clean):
+    """The same file twice (by another path, too) or a byte copy of it would count its data
+    twice and narrow the intervals by sqrt(2): refused, in one line; so is a copy given as
+    the held-out run of --validate."""
+    run = write_csv(tmp_path / "run.csv", clean)
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(run.read_bytes())
+    other = write_csv(tmp_path / "other.csv", bicycle_run(5.0, seed=3))
+    for runs in ([run, run], [run, tmp_path / ".." / tmp_path.name / "run.csv"], [run, copy]):
+        r = subprocess.run([tool("stid"), "fit", *map(str, runs), "--vehicle", str(VEHICLE)],
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 2 and "hold the same data" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = subprocess.run([tool("stid"), "fit", str(run), "--vehicle", str(VEHICLE), "--validate", str(copy)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "the same data as a run fitted to" in r.stderr, r.stderr
+    ok = subprocess.run([tool("stid"), "fit", str(run), str(other), "--vehicle", str(VEHICLE)],
+                        capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0, ok.stderr
+
+
 def test_misspelt_key_is_named_with_the_nearest_known_key(tmp_path):
     msg = vehicle_error(tmp_path, 'name = "car"\nmass_kg = 9.31\na = 0.2326\nb = 0.2874\n')
     assert "mass_kg" in msg and "did you mean 'mass'" in msg, msg

@@ -47,7 +47,7 @@ def test_fit_far_below_the_floor_says_so_and_points_to_diagnose(simdir):
     assert ok.returncode == 0 and "far below" not in ok.stdout and "judged on" in ok.stdout
     # judging on a run the fit saw is not validation: refused, in one line
     same = _stid("fit", *paths, "--vehicle", RC8, "--model", "bicycle+actuator_lag", "--validate", paths[0])
-    assert same.returncode == 2 and "also a run fitted to" in same.stderr and "Traceback" not in same.stderr
+    assert same.returncode == 2 and "the same data as a run fitted to" in same.stderr and "Traceback" not in same.stderr
 
 
 def test_version_help_and_a_closed_pipe():
