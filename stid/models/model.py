@@ -30,9 +30,17 @@ def parse_model_name(name: str) -> tuple[str, list[str]]:
         if base.startswith("greybox"):
             raise InputError(f"{base!r} (study 2's grey-box) is fitted by 'stid fit --model {base}' only; "
                              "diagnose, compare, report and plan work on the bicycle and its effects")
-        raise InputError(f"unknown base model {base!r}: a model starts with one of {', '.join(BASES)} "
-                         f"(e.g. 'bicycle+{base}' if {base!r} is an effect), or is study 2's 'greybox' or "
-                         "'greybox-study' (stid fit only)")
+        from difflib import get_close_matches
+
+        from stid.models.effect import available_effects
+
+        if base in available_effects():
+            raise InputError(f"{base!r} is an effect, not a base model: a model starts with the base, "
+                             f"e.g. 'bicycle+{'+'.join(parts)}'")
+        near = get_close_matches(base, list(BASES) + ["greybox"], n=1)
+        raise InputError(f"unknown base model {base!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                         + ": a model is 'bicycle' or 'bicycle+' and its effects (e.g. 'bicycle+actuator_lag'), "
+                         "or study 2's 'greybox' or 'greybox-study' (stid fit only)")
     if len(set(effects)) != len(effects):
         raise InputError(f"model {name!r} names an effect twice")
     return base, effects
