@@ -128,8 +128,9 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
     return "\n".join(lines).rstrip()
 
 
-def comparison_text(entries) -> str:
-    """One table: headers above the rows, full model names, then the verdict."""
+def comparison_text(entries, runs=None, vehicle_path=None) -> str:
+    """One table: headers above the rows, full model names, then the verdict (and the command
+    to run next on the same files)."""
     lines = []
     names = [e["model"] for e in entries]
     w = max(14, max(len(n) for n in names) + 2)
@@ -149,7 +150,7 @@ def comparison_text(entries) -> str:
                        "cross-correlation inside it. At the noise floor a residual may still be coloured: the "
                        "sensor noise is filtered too)", indent="", first=""))
     lines.append("")
-    lines.append(_verdict(entries))
+    lines.append(_verdict(entries, runs, vehicle_path))
     for title, key in (("fit per frequency band", "by_band"), ("fit per |ay| bin", "by_ay"), ("fit per run", "by_run")):
         lines.append("")
         lines.append(f"{title} (ay / r):")
@@ -163,7 +164,7 @@ def comparison_text(entries) -> str:
     return "\n".join(lines)
 
 
-def _verdict(entries) -> str:
+def _verdict(entries, runs=None, vehicle_path=None) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
     best = min(entries, key=lambda e: e["bic"])
 
@@ -179,5 +180,6 @@ def _verdict(entries) -> str:
         text += (" reaches" if one else " and reaches") + " the noise floor: nothing more this data can show"
     else:
         text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
-                 + " short of the noise floor: run `stid diagnose --model " + best["model"] + "` to see what is missing")
+                 + " short of the noise floor; to see what is missing:\n"
+                 + "next: " + _command(runs, vehicle_path, "diagnose", "--model", best["model"]))
     return text
