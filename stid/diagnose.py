@@ -376,26 +376,65 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
         # passing candidates is fitted with it (that one is then tested in the next round).
         # (candidates the screen passed over only for want of room are partners too)
         capped = [c for c in ranked if c.result is None and c.screen.get("why") == "capped"]
-        for other in (passing[1:] + capped)[:4]:
-            name2 = f"{model_name}+{top.effect}+{other.effect}"
+        partners = (passing[1:] + capped)[:4]
+        names = [f"{model_name}+{top.effect}+{o.effect}" for o in partners]
+        inits = [dict(o.result.all_params() if o.result is not None else {}, **top.result.all_params())
+                 for o in partners]
+        # the joint fits are independent: all of them start in the workers at once, and are read
+        # here in order, up to the first whose evidence holds (the same answer as fitting them
+        # one after another; the fits past it are wasted on cores that would have idled)
+        joint = _Ahead(pool, [(n2, vehicle, stretches, init) for n2, init in zip(names, inits)],
+                       run_here=not all(_in_workers(n2) for n2 in names))
+        for i, (other, name2) in enumerate(zip(partners, names)):
             if progress:
                 progress.step(f"checking {top.effect} with {other.effect}")
-            init = dict(other.result.all_params() if other.result is not None else {}, **top.result.all_params())
-            both = fit((), vehicle, name2, "time", stretches=stretches, init=init, multistart=False)
+            both = joint.result(i)
             k2 = len(available_effects()[other.effect].params)
             if n_eff is not None and chdtrc(k2, max(_lr(top.result, both, n_eff), 0.0)) >= top.level:
                 # the partner adds nothing beyond chance to the first effect (it sits at or near
                 # its off value): a joint fit that is the first effect alone is no second opinion
                 continue
-            ev = check_evidence(name2, top.effect, vehicle, stretches, both, _mapper(pool, name2))
+            # its refits run in the workers once they are through the partners' fits
+            ev = check_evidence(name2, top.effect, vehicle, stretches, both,
+                                _mapper(pool, name2) if joint.all_done() else map)
             if ev.holds:
                 ev.reason = f"holds once {other.effect} is fitted with it (first: {top.evidence.reason})"
                 top.evidence = ev
                 break
+        joint.drop_the_rest()
     if top.evidence.holds:
         top.significant = True
     else:
         top.why_not = f"not named: {top.evidence.reason}"
+
+
+def _fit_joint(args):
+    name, vehicle, stretches, init = args
+    return fit((), vehicle, name, "time", stretches=stretches, init=init, multistart=False)
+
+
+class _Ahead:
+    """Fits started in the worker pool ahead of need and read in order. A fit no worker has
+    started when it is needed is done here instead of waited for."""
+
+    def __init__(self, pool, jobs, run_here: bool = False):
+        self.jobs = jobs
+        self.futures = [None] * len(jobs) if pool is None or run_here else [pool.submit(_fit_joint, j) for j in jobs]
+
+    def result(self, i):
+        f = self.futures[i]
+        if f is None or f.cancel():
+            return _fit_joint(self.jobs[i])
+        return f.result()
+
+    def all_done(self) -> bool:
+        return all(f is None or f.done() for f in self.futures)
+
+    def drop_the_rest(self):
+        """Those not needed: cancelled if not started (a running one is ended with the pool)."""
+        for f in self.futures:
+            if f is not None:
+                f.cancel()
 
 
 def _fit_one(args):

@@ -27,14 +27,14 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
     ex = ProcessPoolExecutor(max_workers=workers, initializer=_leave_interrupts_to_the_command)
     try:
         yield ex
-    except BaseException:
-        # interrupted (Ctrl-C) or failed: what the workers are doing is of no use any more
+    finally:
+        # the command has what it needs (or was interrupted, or failed): whatever a worker is
+        # still doing is of no use (a fit started ahead of need), and is not waited for.
+        # Terminated before the shutdown: the other order hangs at interpreter exit
         procs = getattr(ex, "_processes", None) or {}  # (the executor has no public way to stop them)
         for proc in list(procs.values()):
             proc.terminate()
         ex.shutdown(wait=True, cancel_futures=True)
-        raise
-    ex.shutdown(wait=True)
 
 
 def _leave_interrupts_to_the_command():
