@@ -383,8 +383,8 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
         # the joint fits are independent: all of them start in the workers at once, and are read
         # here in order, up to the first whose evidence holds (the same answer as fitting them
         # one after another; the fits past it are wasted on cores that would have idled)
-        joint = _Ahead(pool, [(n2, vehicle, stretches, init) for n2, init in zip(names, inits)],
-                       run_here=not all(_in_workers(n2) for n2 in names))
+        joint = _Ahead(pool if all(_in_workers(n2) for n2 in names) else None, _fit_joint,
+                       [(n2, vehicle, stretches, init) for n2, init in zip(names, inits)])
         for i, (other, name2) in enumerate(zip(partners, names)):
             if progress:
                 progress.step(f"checking {top.effect} with {other.effect}")
@@ -414,17 +414,20 @@ def _fit_joint(args):
 
 
 class _Ahead:
-    """Fits started in the worker pool ahead of need and read in order. A fit no worker has
-    started when it is needed is done here instead of waited for."""
+    """Jobs ``fn(job)`` started in the worker pool ahead of need (in ``order``), and read when
+    needed. A job no worker has started when it is needed is done here instead of waited for."""
 
-    def __init__(self, pool, jobs, run_here: bool = False):
-        self.jobs = jobs
-        self.futures = [None] * len(jobs) if pool is None or run_here else [pool.submit(_fit_joint, j) for j in jobs]
+    def __init__(self, pool, fn, jobs, order=None):
+        self.fn, self.jobs = fn, jobs
+        self.futures = [None] * len(jobs)
+        if pool is not None:
+            for i in (range(len(jobs)) if order is None else order):
+                self.futures[i] = pool.submit(fn, jobs[i])
 
     def result(self, i):
         f = self.futures[i]
         if f is None or f.cancel():
-            return _fit_joint(self.jobs[i])
+            return self.fn(self.jobs[i])
         return f.result()
 
     def all_done(self) -> bool:
@@ -506,12 +509,9 @@ def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None
     # parameter), so that the cores finish together; a fit no worker has taken yet is
     # done here rather than waited for
     order = sorted(range(len(jobs)), key=lambda i: -len(available_effects()[effects[i]].params))
-    futures = {i: pool.submit(_fit_one, jobs[i]) for i in order}
-    out = {}
-    for i in reversed(order):
-        if futures[i].cancel():
-            out[i] = _fit_one(jobs[i])
-    return [out[i] if i in out else futures[i].result() for i in range(len(jobs))]
+    ahead = _Ahead(pool, _fit_one, jobs, order)
+    out = {i: ahead.result(i) for i in reversed(order)}  # the last queued first: those are done here
+    return [out[i] for i in range(len(jobs))]
 
 
 def explain(c: Candidate, base, stretches) -> str:
