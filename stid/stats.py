@@ -53,3 +53,20 @@ def tau_int(e: np.ndarray, max_lag: int) -> float:
     below = np.flatnonzero(ac[1:] < 0.05)
     k = int(below[0]) + 1 if len(below) else max_lag
     return float(max(1.0, 1 + 2 * np.sum(ac[1:k])))
+
+
+def tau_int_blocks(blocks, max_lag: int) -> np.ndarray:
+    """tau_int of each column over blocks (n_i, k) of one series cut in pieces (the stretches
+    of a fit), averaged by length; blocks of 2 max_lag samples or fewer are left out (0 where
+    none is longer)."""
+    taus, n_tot = None, 0
+    for b in blocks:
+        b = np.asarray(b, float)
+        if len(b) <= 2 * max_lag:
+            continue
+        t = np.array([tau_int(b[:, j], max_lag) for j in range(b.shape[1])])
+        taus = len(b) * t if taus is None else taus + len(b) * t
+        n_tot += len(b)
+    if taus is None:
+        return np.zeros(np.shape(blocks[0])[1] if len(blocks) else 0)
+    return taus / n_tot

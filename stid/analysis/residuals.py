@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from stid.stats import tau_int, xcorr as _xcorr
+from stid.stats import tau_int_blocks, xcorr as _xcorr
 
 Z99 = 2.576
 
@@ -43,7 +43,6 @@ def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:
     outs = ("ay", "r")
     auto = {o: np.zeros(L + 1) for o in outs}
     cross = {o: np.zeros(2 * L + 1) for o in outs}
-    taus = {o: 0.0 for o in outs}
     bart = {o: 0.0 for o in outs}
     n_tot = 0
     for p in predictions:
@@ -56,14 +55,14 @@ def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:
         for i, o in enumerate(outs):
             auto[o] += n * _xcorr(e[:, i], e[:, i], L)[L:]
             cross[o] += n * _xcorr(e[:, i], u, L)
-            taus[o] += n * tau_int(e[:, i], L)
             # Bartlett: var r_eu(k) ~ (1/N) sum_j rho_ee(j) rho_uu(j) for independent coloured series
             ree = _xcorr(e[:, i], e[:, i], L)
             ruu = _xcorr(u, u, L)
             bart[o] += n * float(np.sum(ree * ruu))
         n_tot += n
     n_tot = max(n_tot, 1)
+    taus = dict(zip(outs, tau_int_blocks([(p.y - p.yhat)[p.keep] for p in predictions], L)))
     return ResidualAnalysis(lags_s=np.arange(-L, L + 1) * dt, auto={o: v / n_tot for o, v in auto.items()},
                             cross={o: v / n_tot for o, v in cross.items()}, band=Z99 / np.sqrt(n_tot),
-                            tau_int={o: v / n_tot for o, v in taus.items()}, n=n_tot,
+                            tau_int={o: float(v) for o, v in taus.items()}, n=n_tot,
                             cross_band={o: Z99 * np.sqrt(max(v / n_tot, 1.0) / n_tot) for o, v in bart.items()})

@@ -19,7 +19,7 @@ from stid.fit.result import FitResult, Prediction, fit_percent
 from stid.fit.solver import ParamSpace, starting_points, covariance_sandwich, least_squares, to_physical
 from stid.fit import checks
 from stid.fit import intervals as jk
-from stid.stats import SCORE_FROM_S, tau_int
+from stid.stats import SCORE_FROM_S, tau_int_blocks
 
 OUTPUTS = ("ay", "r")
 
@@ -170,17 +170,11 @@ AR_ORDER = 12
 
 def _colour(r: np.ndarray, keeps: list, dt: float, max_lag_s: float = 0.5) -> float:
     """The residuals' integrated autocorrelation time [samples], the whiter output's (the
-    smaller: the stricter stopping rule), averaged over the stretches by length as
-    stid.analysis.residuals does it. ``r``: (n, 2), the kept samples of every stretch in turn."""
-    L = max(2, int(max_lag_s / dt))
-    taus, n_tot, pos = np.zeros(2), 0, 0
-    for k in keeps:
-        n = int(k.sum())
-        block, pos = r[pos:pos + n], pos + n
-        if n > 2 * L:
-            taus += n * np.array([tau_int(block[:, j], L) for j in range(2)])
-            n_tot += n
-    return float(taus.min() / n_tot) if n_tot else 1.0
+    smaller: the stricter stopping rule), as stid.analysis.residuals measures it. ``r``:
+    (n, 2), the kept samples of every stretch in turn."""
+    blocks = np.split(r, np.cumsum([int(k.sum()) for k in keeps])[:-1])
+    taus = tau_int_blocks(blocks, max(2, int(max_lag_s / dt)))
+    return float(taus.min()) if taus.size and taus.min() > 0 else 1.0
 
 
 def _sandwich(J: np.ndarray, r: np.ndarray, keeps: list) -> np.ndarray:
