@@ -48,27 +48,20 @@ def same_data(paths, others=()) -> list[tuple]:
     ``paths`` or, with ``others``, between ``paths`` and ``others``. Only files of equal size
     are read."""
     import hashlib
+    from functools import lru_cache
 
-    def key(p):
-        try:
-            return Path(p).stat().st_size
-        except OSError:  # a missing file: the loader says so
-            return None
+    @lru_cache(maxsize=None)
+    def size(p):
+        path = Path(p)
+        return path.stat().st_size if path.is_file() else None  # a missing file: the loader says so
 
-    digests: dict = {}
-
+    @lru_cache(maxsize=None)
     def digest(p):
-        if p not in digests:
-            digests[p] = hashlib.sha1(Path(p).read_bytes()).digest()
-        return digests[p]
+        return hashlib.sha1(Path(p).read_bytes()).digest()
 
-    pairs = []
-    candidates = [(a, b) for i, a in enumerate(paths) for b in (others if others else paths[i + 1:])]
-    for a, b in candidates:
-        ka, kb = key(a), key(b)
-        if ka is not None and ka == kb and not Path(a).is_dir() and (_one_file(a, b) or digest(a) == digest(b)):
-            pairs.append((a, b))
-    return pairs
+    pairs = [(a, b) for i, a in enumerate(paths) for b in (others if others else paths[i + 1:])]
+    return [(a, b) for a, b in pairs
+            if size(a) is not None and size(a) == size(b) and (_one_file(a, b) or digest(a) == digest(b))]
 
 
 def _one_file(a, b) -> bool:
