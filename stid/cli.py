@@ -45,18 +45,20 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_fit(args) -> int:
+    from stid.analysis.noise_floor import noise_floor_uncertainty
     from stid.fit.fitting import fit
     from stid.progress import Progress
     from stid.workers import worker_pool
 
     vehicle, runs = _vehicle_and_runs(args)
     held = _validation_runs(args, vehicle)
+    judged_on = _judged_stretches(held if held else runs, bool(held))
     # the noise floor needs only the data: it is estimated on the other core while the model is fitted
     with Progress(f"fitting {args.model} ({args.method})") as prog, worker_pool(1) as pool:
-        floor = pool.submit(_floor_of, held if held else runs, bool(held)) if pool else None
+        floor = pool.submit(noise_floor_uncertainty, judged_on) if pool and judged_on is not None else None
         res = fit(runs, vehicle, args.model, args.method)
         prog.step("the noise floor")
-        judged, floor, floor_se = _judge(res, args.model, vehicle, runs, held, floor)
+        judged, floor, floor_se = _judge(res, args.model, vehicle, judged_on, held, floor)
     if args.json:
         doc = res.to_json()
         if held:
@@ -89,33 +91,35 @@ def _validation_runs(args, vehicle):
     return held
 
 
-def _floor_of(runs, held: bool):
-    """The noise floor of runs and its standard error (nan where they hold no stretch to
-    fit, unless they are held-out runs to judge on: then that is the user's error)."""
-    from stid.analysis.noise_floor import noise_floor_uncertainty
+def _judged_stretches(runs, held: bool):
+    """The stretches a fit is judged on: its own runs' (None when they hold none to fit: then
+    there is no noise floor), or the held-out runs' (none there is the user's error)."""
     from stid.errors import InputError
     from stid.fit import dataset
 
     try:
-        st = dataset.dynamic_stretches(runs)
+        return dataset.dynamic_stretches(runs)
     except InputError:
         if held:
             raise
-        return {"ay": float("nan"), "r": float("nan")}, {"ay": float("nan"), "r": float("nan")}
-    return noise_floor_uncertainty(st)
+        return None
 
 
-def _judge(res, model_name, vehicle, runs, held, floor=None):
-    """The fit judged on the held-out runs (or its own), and the noise floor of those runs
-    (``floor``: a Future of it, when a worker computes it)."""
-    floor, se = floor.result() if floor is not None else _floor_of(held if held else runs, bool(held))
+def _judge(res, model_name, vehicle, stretches, held, floor=None):
+    """The fit judged on the held-out runs' ``stretches`` (or its own), and the noise floor of
+    those (``floor``: a Future of it, when a worker computes it)."""
+    from stid.analysis.noise_floor import noise_floor_uncertainty
+
+    if stretches is None:
+        nan = {"ay": float("nan"), "r": float("nan")}
+        return res, nan, dict(nan)
+    floor, se = floor.result() if floor is not None else noise_floor_uncertainty(stretches)
     if not held or not res.predictions:
         return res, floor, se
-    from stid.fit import dataset
     from stid.fit.validate import judge_on
     from stid.models.model import Model
 
-    return judge_on(res, Model(model_name, vehicle), dataset.dynamic_stretches(held)), floor, se
+    return judge_on(res, Model(model_name, vehicle), stretches), floor, se
 
 
 def _floor_line(res, floor, se, args) -> str:
