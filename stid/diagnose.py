@@ -252,6 +252,31 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
     whose off value lies far outside its range (a friction coefficient of 1e6) is stepped
     to its nearest bound instead (the secant, scaled by a coefficient >= 0). An effect
     with no off value cannot be screened and is always fitted."""
+    always, screened = linearised_steps(model_name, cands, vehicle, stretches, base, n_eff, level)
+    screened.sort(key=lambda c: -c.lr)
+    keep = []
+    for c in screened:
+        best_gain = max(c.gain.values())
+        if c.p_value >= 100 * level:
+            c.screen["why"] = "chance"
+            c.why_not = (f"screened out: a linearised step from {model_name} is within chance "
+                         f"({p_in_words(c.p_value, level)})")
+        elif best_gain < 0.5 * MIN_GAIN:
+            c.screen["why"] = "small"
+            c.why_not = f"screened out: a linearised step from {model_name} gains only {best_gain:.2f} fit points"
+        elif len(keep) >= MAX_FULL_FITS:
+            c.screen["why"] = "capped"
+            c.why_not = (f"screened out: {MAX_FULL_FITS} candidates gain more in a linearised step from "
+                         f"{model_name} (this one: {best_gain:.1f} fit points)")
+        else:
+            keep.append(c)
+    return keep + always
+
+
+def linearised_steps(model_name, cands, vehicle, stretches, base, n_eff, level):
+    """The screen's step (see screen_candidates) for each candidate, from ``base``, a fit of
+    ``model_name``: sets each one's ``lr``, ``p_value``, ``screen``, ``gain`` and ``start``.
+    Returns (the candidates it cannot step: no off value, the stepped ones)."""
     from scipy.optimize import lsq_linear
 
     sigma = np.asarray(base.extra.get("sigma", np.ones(2)), float)
@@ -312,24 +337,7 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
                    for n, v in start.items() if n in m.param_names}
         c.gain = {o: c.screen["fit"][o] - fit_now[o] for o in OUTS}
         screened.append(c)
-    screened.sort(key=lambda c: -c.lr)
-    keep = []
-    for c in screened:
-        best_gain = max(c.gain.values())
-        if c.p_value >= 100 * level:
-            c.screen["why"] = "chance"
-            c.why_not = (f"screened out: a linearised step from {model_name} is within chance "
-                         f"({p_in_words(c.p_value, level)})")
-        elif best_gain < 0.5 * MIN_GAIN:
-            c.screen["why"] = "small"
-            c.why_not = f"screened out: a linearised step from {model_name} gains only {best_gain:.2f} fit points"
-        elif len(keep) >= MAX_FULL_FITS:
-            c.screen["why"] = "capped"
-            c.why_not = (f"screened out: {MAX_FULL_FITS} candidates gain more in a linearised step from "
-                         f"{model_name} (this one: {best_gain:.1f} fit points)")
-        else:
-            keep.append(c)
-    return keep + always
+    return always, screened
 
 
 def _indistinct(top, c) -> bool:
@@ -376,15 +384,15 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
         # passing candidates is fitted with it (that one is then tested in the next round).
         # (candidates the screen passed over only for want of room are partners too)
         capped = [c for c in ranked if c.result is None and c.screen.get("why") == "capped"]
-        partners = (passing[1:] + capped)[:4]
+        partners = _rank_partners(model_name, top, passing[1:] + capped, vehicle, stretches, n_eff)[:4]
         names = [f"{model_name}+{top.effect}+{o.effect}" for o in partners]
         inits = [dict(o.result.all_params() if o.result is not None else {}, **top.result.all_params())
                  for o in partners]
-        # the joint fits are independent: all of them start in the workers at once, and are read
-        # here in order, up to the first whose evidence holds (the same answer as fitting them
-        # one after another; the fits past it are wasted on cores that would have idled)
+        # the joint fits are independent: they start in the workers one per core ahead of need,
+        # and are read here in order, up to the first whose evidence holds (the same answer as
+        # fitting them one after another; the likeliest partner is first, so usually one fit)
         joint = _Ahead(pool if all(_in_workers(n2) for n2 in names) else None, _fit_joint,
-                       [(n2, vehicle, stretches, init) for n2, init in zip(names, inits)])
+                       [(n2, vehicle, stretches, init) for n2, init in zip(names, inits)], window=WORKERS)
         for i, (other, name2) in enumerate(zip(partners, names)):
             if progress:
                 progress.step(f"checking {top.effect} with {other.effect}")
@@ -408,6 +416,19 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
         top.why_not = f"not named: {top.evidence.reason}"
 
 
+def _rank_partners(model_name, top, others, vehicle, stretches, n_eff) -> list:
+    """The effects to fit jointly with ``top``, the likeliest second effect first: ranked by
+    the screen's linearised step from the model with ``top`` added. Their own ranking was
+    from the base model, where ``top``'s symptom dominated it (there, each effect that mimics
+    a servo lag outranks an accelerometer offset that is really there)."""
+    trial = [Candidate(o.effect) for o in others]
+    unstepped, stepped = linearised_steps(f"{model_name}+{top.effect}", trial, vehicle, stretches, top.result,
+                                          n_eff or 1.0, top.level)
+    lr = {c.effect: c.lr for c in stepped}
+    lr.update({c.effect: math.inf for c in unstepped})  # no off value to step from: fitted first
+    return sorted(others, key=lambda o: -lr[o.effect])
+
+
 def _fit_joint(args):
     name, vehicle, stretches, init = args
     return fit((), vehicle, name, "time", stretches=stretches, init=init, multistart=False)
@@ -415,16 +436,25 @@ def _fit_joint(args):
 
 class _Ahead:
     """Jobs ``fn(job)`` started in the worker pool ahead of need (in ``order``), and read when
-    needed. A job no worker has started when it is needed is done here instead of waited for."""
+    needed. A job no worker has started when it is needed is done here instead of waited for.
+    ``window``: at most that many jobs, from the one being read on, are started (for jobs read in
+    order that may not all be needed: a worker busy with one that is not holds up what follows)."""
 
-    def __init__(self, pool, fn, jobs, order=None):
-        self.fn, self.jobs = fn, jobs
+    def __init__(self, pool, fn, jobs, order=None, window=None):
+        self.pool, self.fn, self.jobs = pool, fn, jobs
+        self.order = list(range(len(jobs)) if order is None else order)
+        self.window = len(jobs) if window is None else window
         self.futures = [None] * len(jobs)
-        if pool is not None:
-            for i in (range(len(jobs)) if order is None else order):
-                self.futures[i] = pool.submit(fn, jobs[i])
+        self._submit_up_to(self.window)
+
+    def _submit_up_to(self, n):
+        if self.pool is not None:
+            for i in self.order[:n]:
+                if self.futures[i] is None:
+                    self.futures[i] = self.pool.submit(self.fn, self.jobs[i])
 
     def result(self, i):
+        self._submit_up_to(self.order.index(i) + self.window)
         f = self.futures[i]
         if f is None or f.cancel():
             return self.fn(self.jobs[i])

@@ -200,22 +200,16 @@ def test_a_parameter_is_one_value_across_speeds_only_within_its_intervals_and_a_
     assert not disagreements(parts((0.24, 0.08), (0.36, 0.08)), ["k"])  # inside wide intervals: no evidence
 
 
-def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_absent(rc_vehicle):
-    """The linearised screen (a score test from the current model) decides which candidates
-    get a full fit. Data written here: the single track of test_one_path driven through a
-    first-order servo lag of 40 ms (exact discretisation), with white sensor noise. The
-    lag, and the pure delay that mimics it, must pass to the full fit; a yaw moment from a
-    locked differential and sensor offsets, absent from the data, must not."""
+def _servo_lag_from_physics(tau=0.040, x_acc=0.0, fs=200.0):
+    """Data written here: the single track of test_one_path at 4 and 6 m/s driven through a
+    first-order servo lag (exact discretisation), its accelerometer ``x_acc`` ahead of the CG
+    (ay + x_acc r', with r' the derivative of the exact yaw rate), with white sensor noise."""
     import numpy as np
     from scipy.linalg import expm
 
-    from stid.analysis.residuals import analyse
-    from stid.diagnose import Candidate, screen_candidates
     from stid.fit.dataset import Stretch, Stretches
-    from stid.fit.fitting import fit
     from test_one_path import bicycle_run
 
-    fs, tau = 200.0, 0.040
     stretches = []
     rng = np.random.default_rng(5)
     for seed, v in ((1, 4.0), (2, 6.0)):
@@ -228,10 +222,23 @@ def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_ab
             wheel[i] = d
             d = e[0, 0] * d + e[0, 1] * u
         lagged = bicycle_run(lambda t: np.full(len(t), v), T=40.0, fs=fs, seed=seed, steer=wheel)
-        ay = lagged["ay"] + 0.02 * np.std(lagged["ay"]) * rng.standard_normal(len(wheel))
+        ay = lagged["ay"] + x_acc * np.gradient(lagged["r"], 1 / fs)
+        ay = ay + 0.02 * np.std(ay) * rng.standard_normal(len(wheel))
         r = lagged["r"] + 0.02 * np.std(lagged["r"]) * rng.standard_normal(len(wheel))
         stretches.append(Stretch(f"run{seed}", run["t"], run["steer"], ay, r, np.full(len(wheel), v), v))
-    stretches = Stretches(stretches)
+    return Stretches(stretches)
+
+
+def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_absent(rc_vehicle):
+    """The linearised screen (a score test from the current model) decides which candidates
+    get a full fit. On a servo lag of 40 ms written from physics (_servo_lag_from_physics),
+    the lag, and the pure delay that mimics it, must pass to the full fit; a yaw moment from
+    a locked differential and sensor offsets, absent from the data, must not."""
+    from stid.analysis.residuals import analyse
+    from stid.diagnose import Candidate, screen_candidates
+    from stid.fit.fitting import fit
+
+    stretches = _servo_lag_from_physics()
     base = fit((), rc_vehicle, "bicycle", "time", stretches=stretches)
     ra = analyse(base.predictions)
     n_eff = ra.n / max(ra.tau_int.values())
@@ -243,6 +250,52 @@ def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_ab
     for c in cands:
         if c.effect in ("locked_diff", "sensor_bias"):
             assert c.effect not in kept and c.why_not.startswith("screened out"), (c.effect, c.lr, c.gain)
+
+
+def test_the_second_effect_is_tried_first_once_the_first_is_added(rc_vehicle):
+    """When the named effect's evidence fails because a second effect bends it, diagnose refits
+    it jointly with each partner in turn. From the base model the partners that mimic a servo
+    lag outrank an accelerometer offset that is really there; ranked from the model with the lag
+    added (the screen's step), the offset comes first. Data written from physics: a 40 ms lag
+    and an accelerometer 8 cm ahead of the CG."""
+    from stid.analysis.residuals import analyse
+    from stid.diagnose import Candidate, _rank_partners
+    from stid.fit.fitting import fit
+
+    stretches = _servo_lag_from_physics(x_acc=0.08)
+    lag = fit((), rc_vehicle, "bicycle+actuator_lag", "time", stretches=stretches)
+    ra = analyse(lag.predictions)
+    top = Candidate("actuator_lag", result=lag)
+    others = [Candidate(e) for e in ("sensor_delay", "tyre_relaxation", "body_roll", "accel_offset")]
+    ranked = _rank_partners("bicycle", top, others, rc_vehicle, stretches, ra.n / max(ra.tau_int.values()))
+    assert [c.effect for c in ranked][0] == "accel_offset", [c.effect for c in ranked]
+    assert sorted(c.effect for c in ranked) == sorted(c.effect for c in others)
+
+
+def test_jobs_read_in_order_are_started_one_window_ahead():
+    """The rescue's joint fits are read in order and usually only the first is needed: no more
+    than a window of them may occupy the workers, or the next step waits behind unneeded fits."""
+    from stid.diagnose import _Ahead
+
+    class Pool:
+        def __init__(self):
+            self.submitted = []
+
+        def submit(self, fn, job):
+            from concurrent.futures import Future
+
+            self.submitted.append(job)
+            f = Future()
+            f.set_running_or_notify_cancel()  # as a worker that took it
+            f.set_result(fn(job))
+            return f
+
+    pool = Pool()
+    ahead = _Ahead(pool, lambda j: 10 * j, [0, 1, 2, 3, 4], window=2)
+    assert pool.submitted == [0, 1]
+    assert ahead.result(0) == 0 and pool.submitted == [0, 1]
+    assert ahead.result(1) == 10 and pool.submitted == [0, 1, 2]
+    assert ahead.result(3) == 30 and pool.submitted == [0, 1, 2, 3, 4]
 
 
 def _diagnose_in_a_worker(job):
