@@ -81,6 +81,7 @@ class Candidate:
     separable_from: dict = field(default_factory=dict)  # other effect -> advice
     same_symptom_as: str = ""
     evidence: object = None
+    evidence_alone: object = None  # the first check, of the model with this effect alone (its per-speed fits)
     skipped: str = ""
     screen: dict = field(default_factory=dict)  # the linearised step's prediction (see screen_candidates)
     start: dict | None = None  # where the screen's step landed: a start for the full fit
@@ -377,7 +378,8 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
     if progress:
         progress.step(f"checking {top.effect} at each speed")
     name = f"{model_name}+{top.effect}"
-    top.evidence = check_evidence(name, top.effect, vehicle, stretches, top.result, _mapper(pool, name))
+    top.evidence = top.evidence_alone = check_evidence(name, top.effect, vehicle, stretches, top.result,
+                                                       _mapper(pool, name))
     if not top.evidence.holds:
         # two effects missing at once: the second bends the first's parameter differently at
         # each speed. The first is still named if its value holds once one of the other
@@ -614,6 +616,11 @@ def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max
         final_name, final = (f"{last.model}+{named.effect}", named.result) if named else (last.model, last.base)
         reasons = [f"{c.effect} is {c.why_not}" for c in last.candidates
                    if c.evidence is not None and not c.evidence.holds]
+        # the final model's per-speed fits were made when its last effect's evidence was checked
+        # (the same model, data and start): read there, not fitted again
+        checked = named or (rounds[-2].best if len(rounds) > 1 else None)
+        parts = checked.evidence_alone.partitions if checked and checked.evidence_alone else None
         last.unexplained = describe_unexplained(final_name, final, vehicle, stretches, floor[0], floor[1], reasons,
-                                                catalogue_done=named is None, mapper=_mapper(pool, final_name))
+                                                catalogue_done=named is None, mapper=_mapper(pool, final_name),
+                                                parts=parts)
     return rounds

@@ -159,6 +159,25 @@ def test_one_missing_effect_gives_one_name_and_the_rest_are_the_same_symptom(sim
     assert lo < TRUTH.tau_steer < hi or abs(d.best.result.value("tau_steer") / TRUTH.tau_steer - 1) < 0.05
 
 
+def test_two_missing_effects_in_one_step_name_the_first_and_fit_each_model_per_speed_once(simdir, rc_vehicle,
+                                                                                        monkeypatch):
+    """Single step, servo lag and accelerometer offset hidden: the lag's value moves with speed
+    until the offset is fitted with it, and then holds, so the lag is named. The model with the
+    lag stays short of the floor, so `unexplained` shows its per-speed fits: the ones the
+    evidence check made (same model, data and start), not made again."""
+    import stid.analysis.evidence as evidence
+
+    fitted = []
+    fit_groups = evidence.fit_groups
+    monkeypatch.setattr(evidence, "fit_groups", lambda name, *a, **k: fitted.append(name) or fit_groups(name, *a, **k))
+    runs = load_runs(random_steer_pair(simdir, ("actuator_lag", "accel_offset")), rc_vehicle)
+    (d,) = diagnose(runs, rc_vehicle, "bicycle")
+    assert d.best is not None and d.best.effect == "actuator_lag"
+    assert "holds once accel_offset is fitted with it" in d.best.evidence.reason, d.best.evidence.reason
+    assert min(d.unexplained.gap.values()) > 1 and d.unexplained.by_speed
+    assert sorted(fitted) == sorted(set(fitted)) and "bicycle+actuator_lag" in fitted, fitted
+
+
 def test_an_effect_mimicked_by_another_is_not_named_and_goes_to_unexplained(simdir, rc_vehicle):
     """Servo lag hidden, but the catalogue offered lacks it (and the pure delay): tyre
     relaxation closes much of the gap, yet its lengths cannot hold as one plausible value

@@ -65,9 +65,9 @@ def _regressors(stretches, preds):
 
 
 def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se, reasons=(),
-                         catalogue_done: bool = True, mapper=map) -> Unexplained:
+                         catalogue_done: bool = True, mapper=map, parts=None) -> Unexplained:
     """What the model leaves, and where (``mapper``: over the per-speed refits, as in
-    stid.analysis.evidence.fit_groups)."""
+    stid.analysis.evidence.fit_groups; ``parts``: those refits when the caller has them)."""
     from stid.analysis.evidence import disagreements, fit_groups
     from stid.analysis.noise_floor import floor_errors, floor_rate
     from stid.stats import tau_int
@@ -139,7 +139,7 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
                                f"{o} at {rows[1][0]}, {100 * rows[2][2]:.0f}% at {rows[2][0]}: a nonlinearity in "
                                "amplitude (a linear miss keeps the share constant)")
     # -- which speed: the model refitted at each speed on its own
-    parts = fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
+    parts = parts or fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
     if "speed" in parts:
         groups = parts["speed"]
         u.by_speed = [(g.label, {n: (g.result.value(n), *dict(zip(g.result.names, g.result.ci95))[n])
