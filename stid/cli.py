@@ -97,11 +97,11 @@ def _judged_stretches(runs, held: bool):
     from stid.errors import InputError
     from stid.fit import dataset
 
+    if held:
+        return dataset.held_out_stretches(runs)
     try:
         return dataset.dynamic_stretches(runs)
     except InputError:
-        if held:
-            raise
         return None
 
 

@@ -75,7 +75,7 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
     for name in models:
         Model(name, vehicle)  # names checked before any data work
     stretches = dataset.dynamic_stretches(runs) if method == "time" else None
-    held = dataset.dynamic_stretches(validate) if validate else None
+    held = dataset.held_out_stretches(validate) if validate else None
     judged_on = held if held is not None else (stretches if stretches is not None else dataset.dynamic_stretches(runs))
     with worker_pool(1) as pool:  # the noise floor needs only the data: on the other core, beside the fits
         floor = pool.submit(noise_floor_uncertainty, judged_on) if pool else None

@@ -194,6 +194,20 @@ def test_a_run_given_twice_is_refused_not_counted_twice(tmp_path, clean):
     assert ok.returncode == 0, ok.stderr
 
 
+def test_a_held_out_run_without_driving_is_named_as_the_held_out_one(tmp_path, clean):
+    """--validate on a run where the car stands still: nothing to judge the fit on. The message
+    must say it is the held-out run, not only that no run has a stretch to fit."""
+    run = write_csv(tmp_path / "run.csv", clean)
+    still = write_csv(tmp_path / "still.csv", dict(clean, vx=np.zeros_like(clean["vx"]), ay=0 * clean["ay"],
+                                                   r=0 * clean["r"]))
+    for command in ("fit", "compare"):
+        r = subprocess.run([tool("stid"), command, str(run), "--vehicle", str(VEHICLE), "--validate", str(still)],
+                           capture_output=True, text=True, timeout=120)
+        error = r.stderr.strip().splitlines()[-1]  # (after the loader's note that its units went unchecked)
+        assert r.returncode == 2 and "held-out" in error and "still.csv" in error, (command, r.stderr)
+        assert "Traceback" not in r.stderr, (command, r.stderr)
+
+
 def test_misspelt_key_is_named_with_the_nearest_known_key(tmp_path):
     msg = vehicle_error(tmp_path, 'name = "car"\nmass_kg = 9.31\na = 0.2326\nb = 0.2874\n')
     assert "mass_kg" in msg and "did you mean 'mass'" in msg, msg

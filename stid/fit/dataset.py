@@ -112,6 +112,15 @@ class Stretches(list):
 _BUILT: dict = {}  # (the runs, the arguments) -> their Stretches: a command asks several times
 
 
+def held_out_stretches(runs) -> Stretches:
+    """The stretches of runs held out to judge a fit on (``--validate``): when they hold none,
+    the message says these are the held-out runs, not the ones fitted to."""
+    try:
+        return dynamic_stretches(runs)
+    except InputError as e:
+        raise InputError(f"the held-out run(s) given to --validate cannot judge the fit: {e}") from None
+
+
 def dynamic_stretches(runs: list[Run], min_s: float = MIN_STRETCH_S, target_fs: float | None = None,
                       trim_s: float = 0.5, constant_speed: bool = False, method: str = "") -> Stretches:
     """Stretches of every run for the dynamic fits (built once for the same runs and
