@@ -24,6 +24,7 @@ import numpy as np  # noqa: E402
 from stid.analysis.residuals import analyse  # noqa: E402
 from stid.compare import breakdown  # noqa: E402
 from stid.diagnose import diagnose  # noqa: E402
+from stid.errors import InputError  # noqa: E402
 from stid.fit.frf import estimate_frf  # noqa: E402
 from stid.fit.steady_fit import fit_steady  # noqa: E402
 from stid.models.model import Model  # noqa: E402
@@ -332,7 +333,11 @@ def _params_table(res) -> str:
 def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None) -> Path:
     """The page for ``runs``; ``rounds``: a ``diagnose(..., peel=True)`` already made of them."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:  # before the diagnosis: a directory that cannot be made is known in a millisecond
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot make the report directory {out_dir} ({e.strerror or e}): "
+                         "give one that can be written with -o") from None
     rounds = rounds or diagnose(runs, vehicle, model_name, peel=True, progress=progress)
     chain = chain_of(rounds)
     stretches = rounds[-1].stretches  # the data every fit of the diagnosis used

@@ -27,3 +27,14 @@ def test_report_is_self_contained_and_tells_the_story(simdir, tmp_path):
     # every model of the chain has its parameters on the page (with intervals)
     chain = re.findall(r"<h3>([^<:]+): fit ay", page)
     assert len(chain) == 3 and chain[0] == "bicycle" and chain[-1].count("+") == 2, chain
+
+
+def test_a_report_directory_that_cannot_be_made_is_named_before_any_work(simdir, tmp_path):
+    paths = random_steer_pair(simdir, ("actuator_lag", "accel_offset"))
+    (tmp_path / "a_file").write_text("")
+    r = subprocess.run([tool("stid"), "report", *map(str, paths), "--vehicle",
+                        str(REPO / "docs" / "examples" / "rc8.toml"), "-o", str(tmp_path / "a_file" / "rep")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.startswith("stid report: error: cannot make the report directory") and "-o" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
