@@ -39,7 +39,7 @@ from scipy.special import chdtrc, chdtri  # chi-square survival function and its
 
 from stid import workers
 from stid.analysis.evidence import check_evidence
-from stid.analysis.noise_floor import noise_floor_uncertainty
+from stid.analysis.noise_floor import noise_floor_uncertainty, submit_floor
 from stid.analysis.residuals import analyse
 from stid.analysis.unexplained import describe_unexplained
 from stid.fit import dataset
@@ -594,7 +594,7 @@ def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max
     Model(model_name, vehicle)  # a misspelt model is the user's first mistake to hear about
     stretches = dataset.dynamic_stretches(runs)  # built once: every fit of every round uses them
     with worker_pool() as pool:
-        floor = pool.submit(noise_floor_uncertainty, stretches) if pool else noise_floor_uncertainty(stretches)
+        floor = submit_floor(pool, stretches) if pool else noise_floor_uncertainty(stretches)
         rounds = []
         name = model_name
         base = None

@@ -164,18 +164,25 @@ def test_two_missing_effects_in_one_step_name_the_first_and_fit_each_model_per_s
     """Single step, servo lag and accelerometer offset hidden: the lag's value moves with speed
     until the offset is fitted with it, and then holds, so the lag is named. The model with the
     lag stays short of the floor, so `unexplained` shows its per-speed fits: the ones the
-    evidence check made (same model, data and start), not made again."""
+    evidence check made (same model, data and start), not made again; so are the noise
+    floor's errors."""
     import stid.analysis.evidence as evidence
+    import stid.analysis.noise_floor as noise_floor
+    from stid import workers
 
-    fitted = []
-    fit_groups = evidence.fit_groups
+    fitted, floors = [], []
+    fit_groups, floor_errors = evidence.fit_groups, noise_floor._floor_errors
     monkeypatch.setattr(evidence, "fit_groups", lambda name, *a, **k: fitted.append(name) or fit_groups(name, *a, **k))
+    monkeypatch.setattr(noise_floor, "_floor_errors", lambda *a: floors.append(1) or floor_errors(*a))
     runs = load_runs(random_steer_pair(simdir, ("actuator_lag", "accel_offset")), rc_vehicle)
     (d,) = diagnose(runs, rc_vehicle, "bicycle")
     assert d.best is not None and d.best.effect == "actuator_lag"
     assert "holds once accel_offset is fitted with it" in d.best.evidence.reason, d.best.evidence.reason
     assert min(d.unexplained.gap.values()) > 1 and d.unexplained.by_speed
     assert sorted(fitted) == sorted(set(fitted)) and "bicycle+actuator_lag" in fitted, fitted
+    # the noise floor's errors, which unexplained compares the residual with band by band, are
+    # the ones the worker estimated the floor from (here, only without workers)
+    assert len(floors) == (0 if workers.WORKERS > 1 else 1), floors
 
 
 def test_an_effect_mimicked_by_another_is_not_named_and_goes_to_unexplained(simdir, rc_vehicle):

@@ -59,7 +59,7 @@ def _design(u: np.ndarray, vx, taps: int, v_ref: float) -> np.ndarray:
 
 
 def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5, with_folds: bool = False,
-                 ridge: float = 1e-6):
+                 ridge: float = 1e-6, known=None):
     """The predictor's cross-validated errors (the floor, sample by sample) and the outputs
     they belong to, per output: lists of arrays, one per stretch (and, ``with_folds``, each
     sample's fold).
@@ -69,17 +69,47 @@ def floor_errors(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5
     the short stretches of a run cut where the car slowed count too.
 
     The result is kept on ``stretches`` (diagnose, compare and the report ask for the same
-    floor of the same stretches several times; each costs a few Cholesky factors of ~500²)."""
+    floor of the same stretches several times; each costs a few Cholesky factors of ~500²).
+    ``known``: the result, computed elsewhere (a worker: ``submit_floor``), to keep."""
     key = (memory_s, keep_from_s, with_folds, ridge)
-    cache = getattr(stretches, "_floor_cache", None)
-    if cache is not None and key in cache:
+    cache = getattr(stretches, "_floor_cache", None) or {}
+    if key in cache:
         return cache[key]
-    out = _floor_errors(stretches, memory_s, keep_from_s, with_folds, ridge)
+    folded = cache.get((memory_s, keep_from_s, True, ridge))
+    if folded is not None:  # the same errors, kept with their folds
+        return folded[:2]
+    out = known if known is not None else _floor_errors(stretches, memory_s, keep_from_s, with_folds, ridge)
     try:
-        stretches._floor_cache = {**(cache or {}), key: out}
+        stretches._floor_cache = {**cache, key: out}
     except AttributeError:  # a plain list: nothing to keep it on
         pass
     return out
+
+
+def submit_floor(pool, stretches):
+    """``noise_floor_uncertainty(stretches)`` computed in a worker of ``pool``: a Future of
+    (floor, its standard error). The errors behind it come back with it and are kept on
+    ``stretches``, where the residual analyses of diagnose and the report ask for them again
+    (0.15 s each time they are computed)."""
+    from concurrent.futures import Future
+
+    out = Future()
+    out.set_running_or_notify_cancel()  # (not cancellable itself: the worker's job is)
+
+    def done(job):
+        try:
+            errors = floor_errors(stretches, with_folds=True, known=job.result())
+        except BaseException as e:  # (the pool torn down under it: whoever waits hears why)
+            out.set_exception(e)
+            return
+        out.set_result(_floor_from(errors))
+
+    pool.submit(_folded_errors, stretches).add_done_callback(done)
+    return out
+
+
+def _folded_errors(stretches):
+    return floor_errors(stretches, with_folds=True)
 
 
 # The predictor's rate. The fit runs at 200 Hz; the data are prefiltered at 20 Hz, so every
@@ -212,7 +242,11 @@ def _percent(e: np.ndarray, y: np.ndarray) -> float:
 
 def noise_floor_uncertainty(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5):
     """(floor, its standard error) per output, in fit points."""
-    err, ref, folds = floor_errors(stretches, memory_s, keep_from_s, with_folds=True)
+    return _floor_from(floor_errors(stretches, memory_s, keep_from_s, with_folds=True))
+
+
+def _floor_from(errors):
+    err, ref, folds = errors
     floor, se = {}, {}
     for o in OUTS:
         if not err[o]:
