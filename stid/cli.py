@@ -64,6 +64,7 @@ def _cmd_fit(args) -> int:
         if held:
             doc["validation"] = {"runs": [r.name for r in held], "fit": {k: round(v, 2) for k, v in judged.fit.items()}}
         doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
+        doc["noise_floor_stderr"] = {k: round(v, 3) for k, v in floor_se.items()}
         print(_json(doc))
     else:
         print(res.table())
@@ -135,7 +136,7 @@ def _floor_line(res, floor, se, args) -> str:
              if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
     on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"
     text = (f"  noise floor (what a correct model reaches {on}): "
-            + "   ".join(f"{o} {floor[o]:.1f}%" for o in floor))
+            + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in floor))
     if short:
         import shlex
 

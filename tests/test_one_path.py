@@ -133,6 +133,9 @@ def test_fit_compare_diagnose_and_report_give_one_set_of_numbers(simdir, rc_vehi
     page = write_report(runs, rc_vehicle, tmp_path / "rep", rounds=rounds).read_text()
     m = re.search(re.escape(model) + r": fit ay ([0-9.]+)%, r ([0-9.]+)%", page)
     assert m and float(m.group(1)) == round(doc["fit"]["ay"], 1) and float(m.group(2)) == round(doc["fit"]["r"], 1)
-    # and the fitted model is not above the floor it is judged against
+    # and the fitted model is not above the floor it is judged against, which `stid fit` gives
+    # with its standard error as diagnose has it
     for o in ("ay", "r"):
         assert doc["fit"][o] <= rounds[0].floor[o] + 3 * rounds[0].floor_se[o]
+        assert doc["noise_floor"][o] == round(rounds[0].floor[o], 2)
+        assert doc["noise_floor_stderr"][o] == round(rounds[0].floor_se[o], 3)
