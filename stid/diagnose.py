@@ -404,9 +404,7 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
                 # the partner adds nothing beyond chance to the first effect (it sits at or near
                 # its off value): a joint fit that is the first effect alone is no second opinion
                 continue
-            # its refits run in the workers once they are through the partners' fits
-            ev = check_evidence(name2, top.effect, vehicle, stretches, both,
-                                _mapper(pool, name2) if joint.all_done() else map)
+            ev = check_evidence(name2, top.effect, vehicle, stretches, both, _mapper(pool, name2))
             if ev.holds:
                 ev.reason = f"holds once {other.effect} is fitted with it (first: {top.evidence.reason})"
                 top.evidence = ev
@@ -461,9 +459,6 @@ class _Ahead:
         if f is None or f.cancel():
             return self.fn(self.jobs[i])
         return f.result()
-
-    def all_done(self) -> bool:
-        return all(f is None or f.done() for f in self.futures)
 
     def drop_the_rest(self):
         """Those not needed: cancelled if not started (a running one is ended with the pool)."""
@@ -520,7 +515,20 @@ def _in_workers(model_name: str) -> bool:
 
 
 def _mapper(pool, model_name: str):
-    return pool.map if pool is not None and _in_workers(model_name) else map
+    """A map over independent fits of ``model_name``: all but the last in the worker pool, the
+    last here, where this process would otherwise only wait. With a worker still busy on a fit
+    started ahead of need, two fits then run side by side, not one after the other on the
+    free worker (a job the pool has queued counts as started: it cannot be taken back)."""
+    if pool is None or not _in_workers(model_name):
+        return map
+
+    def here_and_there(fn, jobs):
+        jobs = list(jobs)
+        there = [pool.submit(fn, j) for j in jobs[:-1]]
+        here = [fn(j) for j in jobs[-1:]]
+        return [f.result() for f in there] + here
+
+    return here_and_there
 
 
 def _fit_candidates(model_name, effects, vehicle, stretches, init, progress=None, pool=None, starts=None):
