@@ -79,6 +79,7 @@ def config_from_args(args):
     plan = manoeuvres.Plan(name=args.manoeuvre, duration=args.duration, speed=args.speed,
                            steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still,
                            speed_profile=args.speed_profile, speed_swing=args.speed_swing)
+    _check_outputs(args)
     from hil_sim.effect_file import load_effect_file
 
     for f in args.effect_file:  # fail here, before any simulation, on a file that cannot work
@@ -87,6 +88,27 @@ def config_from_args(args):
                      board=args.board, rate_hz=args.rate, batch=args.batch, start_ticks=args.start_ticks,
                      stalls=tuple(stalls),
                      wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)
+
+
+def _check_outputs(args) -> None:
+    """The files a run will write, checked before it starts: a path that cannot be written
+    would otherwise fail after the whole simulation, or leave some of its files written."""
+    import os
+    from pathlib import Path
+
+    if args.output and Path(args.output).suffix.lower() != ".mcap":
+        raise ValueError(f"-o {args.output}: -o writes an MCAP log, give a path ending in .mcap "
+                         "(for the CSV import contract use --csv)")
+    for flag, path in (("-o", args.output), ("--csv", args.csv), ("--truth", args.truth), ("--link", args.link)):
+        if not path:
+            continue
+        where = Path(path).parent
+        if Path(path).is_dir():
+            raise ValueError(f"{flag} {path} is a directory: give a file path")
+        if not where.is_dir():
+            raise ValueError(f"{flag} {path}: the directory {where} does not exist; create it or give another path")
+        if not os.access(where, os.W_OK):
+            raise ValueError(f"{flag} {path}: the directory {where} cannot be written; give another path")
 
 
 def main(argv=None) -> int:
@@ -117,6 +139,10 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f"stid-sim: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # the environment refused something the checks could not foresee (a full disk)
+        what = f"cannot write {e.filename}: " if e.filename else ""
+        print(f"stid-sim: error: {what}{e.strerror or e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

@@ -64,12 +64,50 @@ def load_effect_file(path) -> TruthEffect:
     return TruthEffect(name=str(getattr(module, "NAME", path.stem)), path=str(path), **wrapped)
 
 
+RETURNS = {"steer_angle": "the road-wheel angle, one number [rad]",
+           "body_loads": "a pair (Fy [N], Mz [N m])",
+           "sensor_signals": "the dict of signals it was given (arrays ax, ay, az, r of the same length)"}
+
+
 def _reported(fn, hook, path):
-    """``fn``, with an error inside the user's code turned into one line naming the file and hook."""
+    """``fn``, with an error inside the user's code, or a result of the wrong shape (a
+    forgotten ``return``), turned into one line naming the file and hook."""
+    check = {"steer_angle": _one_number, "body_loads": _two_numbers, "sensor_signals": _signals}[hook]
+
     def call(*args):
         try:
-            return fn(*args)
+            out = fn(*args)
         except Exception as e:
             raise ValueError(f"--effect-file {path}: {hook} raised {type(e).__name__}: {e}") from None
+        try:
+            return check(out, *args)
+        except (TypeError, ValueError):
+            got = "nothing (a missing return?)" if out is None else f"{type(out).__name__} {_short(out)}"
+            raise ValueError(f"--effect-file {path}: {hook} must return {RETURNS[hook]}; it returned {got}") from None
 
     return call
+
+
+def _short(x) -> str:
+    text = repr(x)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _one_number(out, *args) -> float:
+    return float(out)
+
+
+def _two_numbers(out, *args) -> tuple:
+    fy, mz = out
+    return float(fy), float(mz)
+
+
+def _signals(out, t, signals, car) -> dict:
+    import numpy as np
+
+    if not isinstance(out, dict) or set(out) != set(signals):
+        raise TypeError
+    for k, v in out.items():
+        if np.shape(v) != np.shape(signals[k]):
+            raise ValueError
+    return out

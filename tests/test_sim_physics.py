@@ -176,6 +176,12 @@ def test_an_effect_file_adds_its_loads_and_signals(tmp_path):
     (None, "no such file"),
     ("def body_loads(:\n", "failed to load (SyntaxError"),
     ("x = 1\n", "defines none of steer_angle, body_loads, sensor_signals"),
+    # results of the wrong shape, found when the simulator first calls the hook
+    ("def body_loads(state, car):\n    return -2.0 * state['r']\n",
+     "body_loads must return a pair (Fy [N], Mz [N m]); it returned float"),
+    ("def sensor_signals(t, s, car):\n    s['r'] = 1.1 * s['r']\n",
+     "sensor_signals must return the dict of signals it was given"),
+    ("def steer_angle(delta, car):\n    pass\n", "steer_angle must return the road-wheel angle"),
 ])
 def test_a_bad_effect_file_is_one_line_and_exit_2(tmp_path, text, says):
     import subprocess
@@ -185,6 +191,25 @@ def test_a_bad_effect_file_is_one_line_and_exit_2(tmp_path, text, says):
     if text is not None:
         f.write_text(text)
     r = subprocess.run([sys.executable, "-m", "hil_sim.cli", "--fast", "-o", str(tmp_path / "x.mcap"),
-                        "--effect-file", str(f)], capture_output=True, text=True)
-    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr
+                        "--duration", "1", "--effect-file", str(f)], capture_output=True, text=True)
+    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args, says", [
+    (["-o", "{tmp}/nodir/x.mcap"], "the directory {tmp}/nodir does not exist"),
+    (["-o", "{tmp}/x.csv"], "-o writes an MCAP log, give a path ending in .mcap"),
+    (["-o", "{tmp}/x.mcap", "--csv", "{tmp}/nodir/x.csv"], "--csv {tmp}/nodir/x.csv: the directory"),
+    (["-o", "{tmp}/x.mcap", "--truth", "{tmp}/nodir/t.json"], "--truth {tmp}/nodir/t.json: the directory"),
+])
+def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, args, says):
+    """Found after the whole simulation, an unwritable path was a traceback, and left the
+    files written before it (the .mcap of a failed --csv)."""
+    import subprocess
+    import sys
+
+    args = [a.format(tmp=tmp_path) for a in args]
+    r = subprocess.run([sys.executable, "-m", "hil_sim.cli", "--fast", "--duration", "1", *args],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and says.format(tmp=tmp_path) in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not list(tmp_path.iterdir()), r.stderr
