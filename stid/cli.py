@@ -303,10 +303,16 @@ class _Parser(argparse.ArgumentParser):
             return text
         import textwrap
 
+        from stid.errors import StidError
         from stid.models.effect import available_effects
 
         lines = ["", "effects a model can add (--model bicycle+EFFECT+...), with their parameters:"]
-        for name, cls in sorted(available_effects().items()):
+        try:
+            effects = available_effects()
+        except StidError as e:  # a user's effect file (STID_EFFECTS) that cannot load: say so here
+            return text + "\n".join(lines + textwrap.wrap(f"(cannot list them: {e})", 78, initial_indent="  ",
+                                                            subsequent_indent="  ")) + "\n"
+        for name, cls in sorted(effects.items()):
             doc = (getattr(cls, "physics", "") or "").split(". ")[0].strip().rstrip(".") + "."
             params = ", ".join(f"{q.name} [{q.unit}]" for q in cls.params)
             lines.append(f"  {name}: {params}")

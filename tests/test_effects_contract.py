@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import REPO
+from simdata import random_steer_pair
 from stid.models.effect import STAGES, available_effects, unregister_effect
 from stid.models.model import Model
 from stid.vehicle_file import load_vehicle
@@ -182,3 +183,35 @@ def test_the_tutorial_runs_end_to_end_and_the_error_falls(tmp_path):
     assert after["r"] > before["r"] + 1.0 and after["ay"] > before["ay"] + 0.5, (before, after)
     m = re.search(r"gyro_scale_err\s+([-0-9.]+)", fit_mine)
     assert m and float(m.group(1)) == pytest.approx(0.06, abs=0.01), fit_mine
+
+
+def test_a_user_effect_cannot_take_a_catalogue_name(tmp_path, simdir):
+    """A user's effect named like a catalogued one silently replaced it: `--help` listed the
+    user's parameters under the catalogue's name, and diagnose named another effect."""
+    import os
+    import subprocess
+    import sys
+
+    from stid.models.effect import Effect, register_effect
+
+    class Mine(Effect):
+        name = "actuator_lag"
+        stage = "output"
+        params = ()
+
+    with pytest.raises(ValueError, match="an effect named 'actuator_lag' already exists"):
+        register_effect(Mine)
+    assert available_effects()["actuator_lag"].__module__ == "stid.effects.actuator_lag"
+    mine = tmp_path / "clash.py"
+    mine.write_text("from stid.models.effect import Effect, register_effect\n\n@register_effect\n"
+                    "class Lag(Effect):\n    name = 'actuator_lag'\n    stage = 'output'\n    params = ()\n")
+    env = dict(os.environ, STID_EFFECTS=str(mine))
+    stid = os.path.join(os.path.dirname(sys.executable), "stid")
+    r = subprocess.run([stid, "fit", *map(str, random_steer_pair(simdir)), "--vehicle",
+                        str(REPO / "docs" / "examples" / "rc8.toml"), "--model", "bicycle+actuator_lag"],
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "already exists" in r.stderr and "clash.py" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    # and --help, which lists the effects, says why it cannot (it was a traceback)
+    h = subprocess.run([stid, "--help"], env=env, capture_output=True, text=True, timeout=60)
+    assert h.returncode == 0 and "cannot list them" in h.stdout and "Traceback" not in h.stderr, h.stderr

@@ -149,6 +149,11 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
         raise ValueError(f"effect {cls.__name__} needs a name that is a Python identifier")
     if cls.stage not in STAGES:
         raise ValueError(f"effect {cls.name}: stage must be one of {', '.join(map(repr, STAGES))}")
+    there = _REGISTRY.get(cls.name)
+    if there is not None and (there.__module__, there.__qualname__) != (cls.__module__, cls.__qualname__):
+        # (the same class loaded again, a module reloaded, is not a clash)
+        raise ValueError(f"an effect named {cls.name!r} already exists ({there.__module__}.{there.__qualname__}): "
+                         f"give {cls.__qualname__} another name")
     _REGISTRY[cls.name] = cls
     return cls
 
