@@ -215,3 +215,29 @@ def test_a_user_effect_cannot_take_a_catalogue_name(tmp_path, simdir):
     # and --help, which lists the effects, says why it cannot (it was a traceback)
     h = subprocess.run([stid, "--help"], env=env, capture_output=True, text=True, timeout=60)
     assert h.returncode == 0 and "cannot list them" in h.stdout and "Traceback" not in h.stderr, h.stderr
+
+
+def test_a_broken_user_effect_is_named_with_its_file_before_any_data_work():
+    """An effect whose apply fails (a row that does not exist) was a traceback in diagnose and
+    'the fit failed numerically ...; check the data for outliers' in fit."""
+    from stid.errors import InputError
+    from stid.models.effect import Effect, register_effect
+    from stid.models.params import Param
+
+    class Broken(Effect):
+        name = "broken_for_the_test"
+        stage = "output"
+        params = (Param("k_broken", "-", "a gain", 0.1, 0.0, 1.0, log=False, zero=0.0),)
+
+        def apply(self, sys, p, ctx):
+            sys = sys.copy()
+            sys.add_to_output("nosuch_output", source="r", gain=p["k_broken"])
+            return sys
+
+    register_effect(Broken)
+    try:
+        with pytest.raises(InputError, match=r"your effect broken_for_the_test \(.*test_effects_contract\.py\) "
+                                             r"fails .*nosuch_output"):
+            Model("bicycle+broken_for_the_test", VEHICLE)
+    finally:
+        unregister_effect("broken_for_the_test")

@@ -40,6 +40,7 @@ change. See docs/writing_an_effect.md.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -186,9 +187,11 @@ def _load_effect_file(path: Path) -> None:
                          "file that defines your effect")
     spec = importlib.util.spec_from_file_location(f"stid_user_effect_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # (as an import would: its classes can say which file they are from)
     try:
         spec.loader.exec_module(module)
     except Exception as e:  # the user's code: say where, in one line
+        sys.modules.pop(spec.name, None)
         raise InputError(f"STID_EFFECTS: {path} failed to load ({type(e).__name__}: {e}); fix the file "
                          "or remove it from STID_EFFECTS") from None
 

@@ -83,6 +83,32 @@ class Model:
 
         chain = sensor_chain.from_vehicle(vehicle)
         self.sensor_bandwidth = {"ay": chain["ay"], "r": chain["r"]}
+        if not self._law_known:
+            self._try_users_effects()
+
+    def _try_users_effects(self) -> None:
+        """A user's effect, tried once at the defaults before any data work: an error in its
+        code is named with its file here, not met as a traceback (or as a fit that 'failed
+        numerically') in the middle of a diagnosis."""
+        import sys
+
+        from stid.errors import StidError
+
+        p, ctx = self.defaults(), self.context(5.0)
+        try:
+            self.build(p, ctx.vx)
+            for e in self._ordered:
+                if e.maps_steer:
+                    e.steer_map(np.zeros(4), p, ctx)
+        except StidError:
+            raise
+        except Exception as ex:
+            mine = [e for e in self.effects if not type(e).__module__.startswith("stid.effects.")]
+            where = ", ".join(f"{e.name} ({getattr(sys.modules.get(type(e).__module__), '__file__', None) or type(e).__module__})"
+                              for e in mine)
+            raise InputError(f"your effect {where} fails when the model {self.name} is built at its defaults "
+                             f"({type(ex).__name__}: {ex}): fix it (docs/writing_an_effect.md lists what each "
+                             "stage's method may do)") from None
 
     @property
     def name(self) -> str:
