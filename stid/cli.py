@@ -208,7 +208,8 @@ def _cmd_report(args) -> int:
 
     vehicle, runs = _vehicle_and_runs(args)
     with Progress("writing the report") as prog:
-        path = write_report(runs, vehicle, args.output, args.model, progress=prog)
+        path = write_report(runs, vehicle, args.output, args.model, progress=prog, run_paths=args.runs,
+                            vehicle_path=args.vehicle)
     print(path)
     return 0
 

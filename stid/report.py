@@ -330,8 +330,11 @@ def _params_table(res) -> str:
             + (f"<p class='note'>{html.escape(res.interval)}</p>" if res.interval else ""))
 
 
-def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None) -> Path:
-    """The page for ``runs``; ``rounds``: a ``diagnose(..., peel=True)`` already made of them."""
+def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None,
+                 run_paths=None, vehicle_path=None) -> Path:
+    """The page for ``runs``; ``rounds``: a ``diagnose(..., peel=True)`` already made of them.
+    ``run_paths``, ``vehicle_path``: the files as the user named them, for the command the
+    page says to run next (default: the runs' names and the vehicle file's path)."""
     out_dir = Path(out_dir)
     try:  # before the diagnosis: a directory that cannot be made is known in a millisecond
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -361,8 +364,9 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
              f"<p>{len(runs)} run(s): {html.escape(', '.join(r.name for r in runs))}. "
              f"Generated {time.strftime('%Y-%m-%d %H:%M')}. Units SI, ISO 8855 axes (x forward, y left, z up), "
              "cornering stiffness per axle in N/rad.</p>",
-             "<h2>Diagnosis</h2><pre>" + html.escape(diagnosis_text(rounds, [r.name for r in runs], vehicle.name,
-                                                                    peel=True)) + "</pre>",
+             "<h2>Diagnosis</h2><pre>" + html.escape(diagnosis_text(
+                 rounds, run_paths or [r.name for r in runs], vehicle_path or vehicle.path or vehicle.name,
+                 peel=True)) + "</pre>",
              "<h2>Along the chain</h2>"]
     for name, res in chain:
         parts.append(f"<h3>{html.escape(name)}: fit ay {res.fit['ay']:.1f}%, r {res.fit['r']:.1f}%</h3>")

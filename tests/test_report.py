@@ -27,6 +27,15 @@ def test_report_is_self_contained_and_tells_the_story(simdir, tmp_path):
     # every model of the chain has its parameters on the page (with intervals)
     chain = re.findall(r"<h3>([^<:]+): fit ay", page)
     assert len(chain) == 3 and chain[0] == "bicycle" and chain[-1].count("+") == 2, chain
+    # the command the page says to run next runs, from another directory too (it named the
+    # vehicle by its name and the runs without their directories)
+    import html
+    import shlex
+
+    nxt = shlex.split(html.unescape(re.search(r"next: ([^<\n]*)", page).group(1)))
+    assert nxt[:2] == ["stid", "fit"] and nxt[-2:] == ["--model", chain[-1]], nxt
+    again = subprocess.run([tool("stid"), *nxt[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
 
 
 def test_a_report_directory_that_cannot_be_made_is_named_before_any_work(simdir, tmp_path):
