@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stid.errors import InputError
 from stid.fit.result import fit_percent
 
 BANDS_HZ = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 8.0))
@@ -72,8 +73,15 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
     from stid.models.model import Model
     from stid.workers import worker_pool
 
+    # names checked before any data work; a model given twice (its effects in any order) is
+    # the same model: two identical rows would read as two results
+    seen = {}
     for name in models:
-        Model(name, vehicle)  # names checked before any data work
+        m = Model(name, vehicle)
+        key = (m.base, frozenset(e.name for e in m.effects))
+        if key in seen:
+            raise InputError(f"--model {seen[key]} and --model {name} are the same model: give each model once")
+        seen[key] = name
     stretches = dataset.dynamic_stretches(runs) if method == "time" else None
     held = dataset.held_out_stretches(validate) if validate else None
     judged_on = held if held is not None else (stretches if stretches is not None else dataset.dynamic_stretches(runs))

@@ -46,6 +46,7 @@ from stid.fit import dataset
 from stid.fit.fitting import fit
 from stid.models.effect import available_effects
 from stid.models.model import Model, parse_model_name
+from stid.models.params import unit_suffix
 
 ALPHA = 0.01
 MIN_GAIN = 0.5  # fit points
@@ -110,6 +111,7 @@ class Candidate:
                     "chance": p_in_words(self.p_value, self.level),
                     "params": self.own_params(),
                     "intervals": {n: [float(ci[n][0]), float(ci[n][1])] for n in self.own_params()},
+                    "units": {n: res.units.get(n, "") for n in self.own_params()},
                     "explanation": self.explanation})
         if self.evidence is not None:
             out["evidence"] = self.evidence.to_json()
@@ -585,7 +587,7 @@ def explain(c: Candidate, base, stretches) -> str:
                 f"{math.degrees(p['bias_r']):+.2f} deg/s, accelerometer offset {p['bias_ay']:+.3f} m/s^2 "
                 "left after calibration")
     else:
-        ps = ", ".join(f"{n} = {v:.4g} {res.units.get(n, '')}" for n, v in c.own_params().items())
+        ps = ", ".join(f"{n} = {v:.4g}{unit_suffix(res.units.get(n, ''))}" for n, v in c.own_params().items())
         lead = f"{cls.signature}: {c.effect} ({ps})" if cls.signature else f"{c.effect} ({ps})"
     text = f"{lead}. Adding it: {gain}."
     if c.separable_from:

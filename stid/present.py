@@ -8,6 +8,8 @@ import textwrap
 
 import numpy as np
 
+from stid.models.params import unit_suffix
+
 WIDTH = 100
 
 
@@ -27,7 +29,7 @@ def _params_with_intervals(res, owner=None) -> str:
         if owner is not None and res.owners.get(n) != owner:
             continue
         lo, hi = ci[n]
-        out.append(f"{n} = {v:.4g} [{lo:.4g}, {hi:.4g}] {res.units.get(n, '')}".rstrip())
+        out.append(f"{n} = {v:.4g} [{lo:.4g}, {hi:.4g}]{unit_suffix(res.units.get(n, ''))}")
     return ", ".join(out)
 
 

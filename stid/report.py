@@ -336,6 +336,9 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
     ``run_paths``, ``vehicle_path``: the files as the user named them, for the command the
     page says to run next (default: the runs' names and the vehicle file's path)."""
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"-o {out_dir} is a file: the report is a directory (report.html and its figures); "
+                         "give a directory path")
     try:  # before the diagnosis: a directory that cannot be made is known in a millisecond
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:

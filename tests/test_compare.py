@@ -50,6 +50,14 @@ def test_fit_far_below_the_floor_says_so_and_points_to_diagnose(simdir):
     assert same.returncode == 2 and "the same data as a run fitted to" in same.stderr and "Traceback" not in same.stderr
 
 
+def test_the_same_model_twice_is_refused(simdir):
+    """Two identical rows (the effects in another order are the same model) read as two results."""
+    paths = random_steer_pair(simdir, ("actuator_lag",))
+    r = _stid("compare", *paths, "--vehicle", RC8, "--model", "bicycle+actuator_lag+accel_offset",
+              "--model", "bicycle+accel_offset+actuator_lag")
+    assert r.returncode == 2 and "are the same model" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
 def test_version_help_and_a_closed_pipe():
     for args in (["--version"], ["fit", "--version"], ["diagnose", "--version"]):
         r = _stid(*args)

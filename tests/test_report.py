@@ -47,3 +47,7 @@ def test_a_report_directory_that_cannot_be_made_is_named_before_any_work(simdir,
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.startswith("stid report: error: cannot make the report directory") and "-o" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    f = subprocess.run([tool("stid"), "report", *map(str, paths), "--vehicle",
+                        str(REPO / "docs" / "examples" / "rc8.toml"), "-o", str(tmp_path / "a_file")],
+                       capture_output=True, text=True, timeout=60)
+    assert f.returncode == 2 and "is a file" in f.stderr and len(f.stderr.strip().splitlines()) == 1, f.stderr

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stid.models.params import unit_suffix
+
 SPEED_STEP = 1.15  # a new speed group starts 15% above the last one's slowest stretch
 AMP_STEP = 1.5  # a new amplitude group starts at 1.5x the last one's smallest steer rms
 MIN_GROUP_S = 10.0  # seconds of data a group needs for its own fit
@@ -125,9 +127,9 @@ def disagreements(parts: dict, names) -> list:
                     if diff > np.hypot(hi_, hj) and diff > MATERIAL * max(abs(vals[i][1]), abs(vals[j][1])):
                         bad = True
             if bad:
-                unit = groups[0].result.units.get(n, "")
+                unit = unit_suffix(groups[0].result.units.get(n, ""))
                 txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}] at {lab}" for lab, v, ci in vals)
-                out.append((kind, n, f"{n} {txt} {unit}".strip()))
+                out.append((kind, n, f"{n} {txt}{unit}"))
     return out
 
 
@@ -141,7 +143,7 @@ def check_evidence(model_name: str, effect: str, vehicle, stretches, result, map
     stuck = at_bound(result, own, model)
     if stuck:
         return Evidence(False, "its parameter stopped at the edge of the plausible range ("
-                        + ", ".join(f"{n} = {result.value(n):.4g} {result.units.get(n, '')}" for n in stuck)
+                        + ", ".join(f"{n} = {result.value(n):.4g}{unit_suffix(result.units.get(n, ''))}" for n in stuck)
                         + "): the data push it outside what the physics allows")
     parts = fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
     for kind, groups in parts.items():

@@ -29,3 +29,8 @@ class Param:
     def value(self, attr, vehicle):
         v = getattr(self, attr)
         return float(v(vehicle) if callable(v) else v)
+
+
+def unit_suffix(unit: str) -> str:
+    """What follows a value in text: " m", or nothing for a pure number (its unit is "-")."""
+    return f" {unit}" if unit and unit != "-" else ""
