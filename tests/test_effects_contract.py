@@ -183,6 +183,12 @@ def test_the_tutorial_runs_end_to_end_and_the_error_falls(tmp_path):
     assert after["r"] > before["r"] + 1.0 and after["ay"] > before["ay"] + 0.5, (before, after)
     m = re.search(r"gyro_scale_err\s+([-0-9.]+)", fit_mine)
     assert m and float(m.group(1)) == pytest.approx(0.06, abs=0.01), fit_mine
+    # the numbers the page says these commands print are the ones they print
+    said = re.search(r"Step 6 fits Cf ([0-9.]+), Cr ([0-9.]+) N/rad, Iz\s+([0-9.]+).*?bicycle\s+alone gave "
+                     r"Cf ([0-9.]+), Cr ([0-9.]+), Iz ([0-9.]+)", DOC, re.S).groups()
+    printed = [re.search(rf"^\s*{n}\s+([0-9.]+)", out, re.M).group(1) for out in (fit_mine, fit_plain)
+               for n in ("Cf", "Cr", "Iz")]
+    assert list(said) == printed, (said, printed)
 
 
 def test_a_user_effect_cannot_take_a_catalogue_name(tmp_path, simdir):

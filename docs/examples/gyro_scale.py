@@ -13,7 +13,8 @@ class GyroScale(Effect):
     physics = ("The gyro's sensitivity differs from the datasheet value by a factor 1 + k, "
                "so the measured yaw rate is (1 + k) r at every frequency and speed.")
     signature = ("the yaw-rate residual is proportional to the yaw rate itself, at every "
-                 "frequency; the lateral-acceleration fit is unaffected")
+                 "frequency and speed; the lateral acceleration misfits only through the car's "
+                 "parameters, bent to fit the wrong yaw rate")
 
     def apply(self, sys, p, ctx):
         sys = sys.copy()
