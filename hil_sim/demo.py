@@ -142,8 +142,9 @@ def main() -> int:
     say(f"\n5. Add what it found: stid fit --model {model}")
     run([tool("stid"), "fit", *runs, "--vehicle", str(vehicle), "--model", model, "--method", "time"])
 
-    say("\n6. The report")
+    say("\n6. The report: one HTML page with the chain, the overlays, the residuals and the diagnosis")
     rep = run([tool("stid"), "report", *runs, "--vehicle", str(vehicle), "-o", str(OUT / "report")], show=False)
+    say(f"    {rep.strip()}")
 
     say(f"\nThe simulator had hidden: {HIDDEN.replace(',', ', ')}.  stid found: {', '.join(found) or 'nothing'}.")
     say(f"Done in {time.time() - t0:.0f} s. Report: {rep.strip()}")

@@ -130,6 +130,12 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
     return "\n".join(lines).rstrip()
 
 
+def _which(passed: dict) -> str:
+    """'yes' (every output), 'ay only', or 'no'."""
+    ok = [o for o, v in passed.items() if v]
+    return "yes" if len(ok) == len(passed) else f"{' '.join(ok)} only" if ok else "no"
+
+
 def comparison_text(entries, runs=None, vehicle_path=None) -> str:
     """One table: headers above the rows, full model names, then the verdict (and the command
     to run next on the same files)."""
@@ -141,8 +147,7 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
     lines.append(f"fit percent {where}; AIC/BIC from the Gaussian likelihood of the fit")
     lines.append(f"{'model':<{w}}{'fit ay':>8}{'fit r':>8}{'AIC':>12}{'BIC':>12}  residual white   indep. of steer")
     for e in entries:
-        white = " ".join(o for o, v in e["white"].items() if v) or "no"
-        indep = " ".join(o for o, v in e["independent"].items() if v) or "no"
+        white, indep = _which(e["white"]), _which(e["independent"])
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
                      f"{e['bic']:12.0f}  {white:<15}  {indep}")
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {})

@@ -51,9 +51,10 @@ def _legend_below(fig, axes, ncol=3):
                 handles.append(h)
                 labels.append(lab)
     if handles:
-        fig.legend(handles, labels, loc="lower center", ncol=min(ncol, len(labels)), fontsize=8,
-                   bbox_to_anchor=(0.5, -0.02), frameon=False)
-        fig.subplots_adjust(bottom=0.18)
+        # under the figure's bottom edge, below the axes' labels (the page's PNG is cut to
+        # what is drawn, bbox_inches="tight", so it grows to hold it)
+        fig.legend(handles, labels, loc="upper center", ncol=min(ncol, len(labels)), fontsize=8,
+                   bbox_to_anchor=(0.5, 0.0), frameon=False)
 
 
 def _png(fig) -> str:
@@ -86,9 +87,10 @@ def error_fall_figure(chain, floor):
         ax.set_title(f"{title} (floor {floor[out]:.1f}%, dashed)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("fit [%]  100 (1 - |y - yhat| / |y - mean y|)")
-    lo = min(min(res.fit.values()) for _, res in chain)
-    axes[0].set_ylim(max(min(lo - 5, 90), -50), 101)
+    lo = max(min(min(min(res.fit.values()) for _, res in chain) - 5, 90), -50)
+    axes[0].set_ylim(lo, 100 + 0.08 * (100 - lo))  # (room above 100% for the values written over the points)
     fig.suptitle("The error falls as the missing effects are added")
+    fig.tight_layout(rect=(0, 0, 1, 0.93))  # (room for the title above the panels' own)
     return fig
 
 
@@ -99,15 +101,15 @@ def time_figure(chain, window_s=8.0):
     p0 = chain[0][1].predictions[0]
     t = p0.t - p0.t[0]
     m = (t >= 2.0) & (t <= 2.0 + window_s)
-    for i, lab in enumerate(("ay [m/s^2]", "r [rad/s]")):
+    for i, (lab, unit) in enumerate((("ay", "m/s^2"), ("r", "rad/s"))):
         ax, axr = axes[2 * i], axes[2 * i + 1]
         ax.plot(t[m], p0.y[m, i], color="k", lw=1.4, label="measured")
         for k, (name, res) in enumerate(chain):
             pk = res.predictions[0]
             ax.plot(t[m], pk.yhat[m, i], color=_color(k, n), lw=1.1, ls="-" if k == n - 1 else "--", label=name)
             axr.plot(t[m], (pk.y - pk.yhat)[m, i], color=_color(k, n), lw=0.9)
-        ax.set_ylabel(lab)
-        axr.set_ylabel("residual")
+        ax.set_ylabel(f"{lab} [{unit}]")
+        axr.set_ylabel(f"residual [{unit}]")
         axr.axhline(0, color="k", lw=0.5)
         for a_ in (ax, axr):
             a_.grid(alpha=0.3)
@@ -195,8 +197,10 @@ def residual_figure(chain):
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
         ax.set_xlabel("lag [s]")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("correlation [-]")
     fig.suptitle("Residual analysis with 99% bands (shaded; cross-correlation bands allow for coloured signals)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.95))  # (room for the title above the panels' own)
     _legend_below(fig, axes)
     return fig
 
@@ -213,17 +217,26 @@ def spectrum_figure(chain, stretches):
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     fs = 1.0 / stretches[0].dt
     nper = int(4 * fs)
+    f_max = 15.0
     for j, (ax, out) in enumerate(zip(axes, ("ay", "r"))):
+        shown = []  # the values inside the plotted band set the vertical range (the prefilter
+        # takes the residual to nothing above 20 Hz, decades below anything of interest)
         if fl[out]:  # (runs too short for the floor's predictor have none)
             ffs = floor_rate(stretches)  # the floor's predictor runs on every other sample
             f, P = signal.welch(np.concatenate(fl[out]), fs=ffs, nperseg=int(4 * ffs))
             ax.semilogy(f, P, color="k", lw=1.5, label="noise floor (what a correct model leaves)")
+            shown.append(P[f <= f_max])
         for k, (name, res) in enumerate(chain):
             col = _color(k, len(chain))
             e = np.concatenate([(p.y - p.yhat)[p.keep, j] for p in res.predictions])
             f2, Pe = signal.welch(e - e.mean(), fs=fs, nperseg=nper)
             ax.semilogy(f2, Pe, color=col, lw=1.2, label=name)
-        ax.set_xlim(0, 15)
+            shown.append(Pe[f2 <= f_max])
+        ax.set_xlim(0, f_max)
+        values = np.concatenate(shown)
+        values = values[values > 0]
+        if len(values):
+            ax.set_ylim(0.3 * values.min(), 3.0 * values.max())
         ax.set_xlabel("frequency [Hz]")
         ax.set_title(f"{out} residual spectrum [{'(m/s^2)^2/Hz' if out == 'ay' else '(rad/s)^2/Hz'}]")
         ax.grid(alpha=0.3, which="both")
