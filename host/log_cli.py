@@ -18,7 +18,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("port", nargs="?", help="serial port, e.g. /dev/ttyUSB0, /dev/ttyACM0 or a "
                                             "/dev/serial/by-id/... link (stable across replug)")
     ap.add_argument("--version", action="version", version=f"%(prog)s {installed_version()}")
-    ap.add_argument("-o", "--output", help="output file (default: stid-YYYYmmdd-HHMMSS.mcap)")
+    ap.add_argument("-o", "--output", help="output file (default: stid-YYYYmmdd-HHMMSS.mcap, made unique); "
+                                           "an existing file is never replaced without --overwrite")
+    ap.add_argument("--overwrite", action="store_true", help="replace the -o file if it exists")
     ap.add_argument("--duration", type=float, help="stop after this many seconds")
     ap.add_argument("--baud", type=int, default=LINK_BAUD,
                     help=f"baud rate: the firmware's UART rate (ignored by USB-CDC; default {LINK_BAUD})")
@@ -55,7 +57,8 @@ def main(argv=None) -> int:
 
         stats = Logger(LogOptions(port=args.port, output=args.output, duration=args.duration, baud=args.baud,
                                   idle_timeout=args.idle_timeout, reconnect_timeout=args.reconnect_timeout,
-                                  status=args.status, hello_from=args.hello_from)).run()
+                                  status=args.status, hello_from=args.hello_from,
+                                  overwrite=args.overwrite)).run()
         print(summary_line(stats), file=sys.stderr)
         return 0
     except HostError as e:

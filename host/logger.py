@@ -32,7 +32,7 @@ from host import protocol as p
 from host.errors import HostError
 from host.frame_decoder import FrameDecoder
 from host.link_watch import LinkWatch, advice, describe_rejects
-from host.mcap_log import McapLog
+from host.mcap_log import McapLog, holds_a_log
 from host.recorder import Recorder
 
 EXIT_OK = 0
@@ -75,6 +75,7 @@ class LogOptions:
     flush_period: float = 1.0
     status: bool | None = None  # live status line (default: only on a terminal)
     hello_from: str | None = None  # an earlier log of the same board, if no HELLO arrives
+    overwrite: bool = False  # replace an existing -o file (never by default: it may be a run)
 
 
 def default_output_name() -> str:
@@ -115,7 +116,7 @@ def port_identity(path: str) -> dict:
     return {"path": path, "device": real, "usb_serial": "", "vid": 0, "pid": 0, "description": ""}
 
 
-def _check_output(path: Path) -> None:
+def _check_output(path: Path, overwrite: bool = False) -> None:
     try:
         parent = path.absolute().parent
         exists = parent.exists()
@@ -127,6 +128,9 @@ def _check_output(path: Path) -> None:
         raise HostError(f"cannot write to {parent}: choose another -o path")
     if path.is_dir():
         raise HostError(f"{path} is a directory: give a file name with -o")
+    if path.is_file() and not overwrite:  # (a device, /dev/null, is not a file to keep)
+        what = "a recorded run" if holds_a_log(path) else "a file"
+        raise HostError(f"{path} exists ({what}): give another -o path, or --overwrite to replace it")
 
 
 class StatusLine:
@@ -161,19 +165,39 @@ class Logger:
         self.opts = opts
         self.stop_reason: str | None = None
         self.port: serial.Serial | None = None
-        self.path = Path(opts.output or default_output_name())
+        self.path = Path(opts.output) if opts.output else None  # None: a new name when the run starts
+
+    def _create_log(self) -> McapLog:
+        """The output, created here and now: -o as given (replaced only with --overwrite), or a
+        name from the clock, made unique (-2, -3, ...) when a file of that name exists, another
+        logger's of the same second included (the create is exclusive, so the two cannot race)."""
+        named = self.path is not None
+        base = self.path or Path(default_output_name())
+        for k in range(1, 1000):
+            path = base if k == 1 else base.with_name(f"{base.stem}-{k}{base.suffix}")
+            try:
+                # (a device given as -o, /dev/null, exists and is opened as it is)
+                device = path.exists() and not path.is_file()
+                log = McapLog(path, exclusive=not (named and (self.opts.overwrite or device)))
+            except FileExistsError:
+                if named:
+                    raise HostError(f"{path} appeared while the port was opened: give another -o path") from None
+                continue
+            except OSError as e:
+                raise DiskError(f"cannot create {path}: {e.strerror}") from None
+            self.path = path
+            return log
+        raise DiskError(f"cannot find a free name like {base} in {base.absolute().parent}")
 
     def _on_signal(self, signum, frame):
         self.stop_reason = signal.Signals(signum).name
 
     def run(self) -> dict:
         o = self.opts
-        _check_output(self.path)
+        # (a name from the clock that exists is made unique when the file is created)
+        _check_output(self.path or Path(default_output_name()), overwrite=o.overwrite or self.path is None)
         self.port = open_port(o.port, o.baud)  # before the file: a wrong port leaves no empty file
-        try:
-            log = McapLog(self.path)
-        except OSError as e:
-            raise DiskError(f"cannot create {self.path}: {e.strerror}") from None
+        log = self._create_log()
         rec = Recorder(log)
         self.identity = port_identity(o.port)
         log.metadata("stid.port", self.identity)

@@ -150,12 +150,26 @@ OWN_CHUNKS = {"stid.chunks": "own"}
 SI_BATCH = 5000  # per-sample messages held before they are written as their own chunk(s)  # JavaScript (Foxglove) reads integers exactly only up to here
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def holds_a_log(path) -> bool:
+    """Whether ``path`` is an MCAP file (a recorded run, which nothing of stid overwrites)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except OSError:
+        return False
+
+
 class McapLog:
     """Write a run. Every write goes to the open chunk; ``flush`` makes it durable."""
 
-    def __init__(self, path, fsync: bool = True, chunk_size: int = 256 * 1024):
+    def __init__(self, path, fsync: bool = True, chunk_size: int = 256 * 1024, exclusive: bool = False):
         self.path = str(path)
-        self._f = open(self.path, "wb")
+        # exclusive: never over an existing file (a recording replaces no run, not even one
+        # another logger started in the same second); FileExistsError otherwise
+        self._f = open(self.path, "xb" if exclusive else "wb")
         self._fsync = fsync
         # the data section CRC covers the records outside chunks (metadata), which have none
         self._w = Writer(self._f, chunk_size=chunk_size, compression=CompressionType.ZSTD,

@@ -17,7 +17,7 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from host.hello_supply import check_source, hello_from_file
-from host.mcap_log import PROFILE, SCHEMAS, TOPICS
+from host.mcap_log import PROFILE, SCHEMAS, TOPICS, holds_a_log
 from host.mcap_read import REPAIR_METADATA, LogReadError, read_log, scan_log
 
 
@@ -25,6 +25,9 @@ def repair(src, dst, hello_from=None) -> dict:
     src, dst = Path(src), Path(dst)
     if dst.exists() and src.resolve() == dst.resolve():
         raise LogReadError("repair writes a new file: give an output path different from the input")
+    if holds_a_log(dst):
+        raise LogReadError(f"{dst} exists and is a recorded run: repair never replaces one; give another -o "
+                           "path (or remove that file first)")
     sc = scan_log(src)
     if not sc.messages:
         raise LogReadError(f"{src} holds no intact message (nothing to repair): "

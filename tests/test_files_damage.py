@@ -185,6 +185,7 @@ def test_a_thousand_damaged_files_never_lie(small_log, tmp_path):
             from host.repair import repair
 
             fixed = tmp_path / "fixed.mcap"
+            fixed.unlink(missing_ok=True)  # (repair never replaces a run)
             try:
                 repair(path, fixed)
             except HostError:

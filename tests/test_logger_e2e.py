@@ -295,3 +295,43 @@ def test_status_line_on_a_terminal_and_quiet_when_piped(tmp_path):
     sim2.proc.wait(timeout=30)
     assert "\r" not in piped.stderr
     assert len(piped.stderr.strip().splitlines()) <= 2  # the summary, and the port-gone note
+
+
+def test_a_recorded_run_is_never_replaced(tmp_path, monkeypatch):
+    """stid-log -o onto an existing run replaced it (598 kB -> 53 kB), export --csv onto a run
+    wrote CSV text over it, repair -o replaced another run, and two loggers started in the
+    same second shared one default name: one run lost each time, exit 0."""
+    run, other = tmp_path / "keep.mcap", tmp_path / "other.mcap"
+    for path, seed in ((run, 1), (other, 2)):
+        subprocess.run([tool("stid-sim"), "--fast", "--duration", "1", "--seed", str(seed), "-o", str(path)],
+                       check=True, capture_output=True, timeout=120)
+    before = run.read_bytes()
+    master, slave = os.openpty()
+    try:
+        r = run_logger(os.ttyname(slave), "-o", run, "--duration", 1)
+        assert_clean_failure(r, 2, "exists (a recorded run)", "--overwrite")
+        assert run.read_bytes() == before
+        notes = tmp_path / "notes.txt"
+        notes.write_text("mine")
+        r = run_logger(os.ttyname(slave), "-o", notes, "--duration", 1)
+        assert_clean_failure(r, 2, "exists (a file)")
+        assert notes.read_text() == "mine"
+    finally:
+        os.close(master)
+        os.close(slave)
+    for cmd, says in ((["stid", "export", str(other), "--csv", str(run)], "export never replaces one"),
+                      (["stid", "repair", str(other), "-o", str(run)], "repair never replaces one")):
+        r = subprocess.run([tool(cmd[0]), *cmd[1:]], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, (cmd, r.stderr)
+        assert run.read_bytes() == before
+    # the default name from the clock, taken already: the new run gets its own
+    from host import logger
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(logger, "default_output_name", lambda: "stid-20261123-030021.mcap")
+    (tmp_path / "stid-20261123-030021.mcap").write_bytes(before)
+    lg = logger.Logger(logger.LogOptions(port="unused"))
+    log = lg._create_log()
+    log.close()
+    assert lg.path.name == "stid-20261123-030021-2.mcap"
+    assert (tmp_path / "stid-20261123-030021.mcap").read_bytes() == before
