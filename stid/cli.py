@@ -257,6 +257,9 @@ def _cmd_plan(args) -> int:
             targets[name.strip()] = float(val.strip().rstrip("%")) / 100
         except ValueError:
             raise InputError(f"--target {t!r}: write NAME=PERCENT, e.g. Iz=5%") from None
+        if not 0 < targets[name.strip()] < 1:  # (nan fails this too)
+            raise InputError(f"--target {t!r}: the target is a standard error in percent of the value, "
+                             "above 0 and below 100, e.g. Iz=5%")
     text, doc = plan_report(model, params, manoeuvres, noise, targets, source, params_source)
     print(_json(doc) if args.json else text)
     return 0

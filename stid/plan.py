@@ -38,6 +38,8 @@ from stid.models.model import Model
 
 G = 9.81
 ANALYSIS_FS = 200.0
+MAX_BW_HZ = PREFILTER_HZ  # the fits low-pass everything at 20 Hz: steer above it is lost
+MAX_AMP = math.radians(15.0)  # rms steer: an RC car's wheels turn about 25-30 deg at full lock
 # datasheet noise densities (one-sided): ADXL335 x/y 150 ug/sqrt(Hz), LISY300AL 0.05 deg/s/sqrt(Hz) (assumed)
 ADXL335_NOISE = 150e-6 * G
 LISY300AL_NOISE = math.radians(0.05)
@@ -82,8 +84,15 @@ def parse_manoeuvre(text: str) -> Manoeuvre:
         amp = math.radians(amp)
     bw, _ = num(kv.get("bw", "4"), "bw")
     dur, _ = num(kv.get("dur", "40"), "dur")
-    if speed <= 0.5 or amp <= 0 or bw <= 0 or dur <= 2:
+    if not (speed > 0.5 and amp > 0 and bw > 0 and dur > 2):  # (nan fails every one)
         raise InputError(f"manoeuvre {text!r}: speed > 0.5 m/s, amp > 0, bw > 0 and dur > 2 s are needed")
+    if bw >= MAX_BW_HZ:
+        raise InputError(f"manoeuvre {text!r}: bw {bw:g} Hz is beyond what the fits use (they low-pass the data "
+                         f"at {MAX_BW_HZ:g} Hz); random steer below that (4-8 Hz is typical)")
+    if amp > MAX_AMP:
+        raise InputError(f"manoeuvre {text!r}: amp {math.degrees(amp):.0f} deg rms is beyond the steering's travel "
+                         f"and the linear tyre range; at most {math.degrees(MAX_AMP):.0f} deg rms (1-4 deg is "
+                         "typical)")
     return Manoeuvre(speed, amp, bw, dur)
 
 
@@ -137,7 +146,14 @@ def predict(model: Model, params: dict, manoeuvres: list[Manoeuvre], noise: dict
             info += i
         else:
             info += fisher_spectrum(model, params, names, f, U, n, ANALYSIS_FS, m.speed, noise, **kw)
-    cov = sandwich(A, B) if estimator == "output-error" else np.linalg.pinv(info)
+    # a parameter the steer's response carries no information about (a constant offset acts at
+    # 0 Hz, which the plan's spectra leave out) has no predicted sd: nan, not the 0 a
+    # pseudo-inverse gives it; the others are predicted without it
+    d = np.diag(info)
+    seen = d > 1e-12 * max(float(d.max(initial=0.0)), 1e-300)
+    cov = np.full((k, k), np.nan)
+    ix = np.ix_(seen, seen)
+    cov[ix] = sandwich(A[ix], B[ix]) if estimator == "output-error" else np.linalg.pinv(info[ix])
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
@@ -193,6 +209,13 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
     for name, target in targets.items():
         if name not in base["sd"]:
             raise InputError(f"--target {name}: the model {model.name} has no parameter {name}")
+        if not np.isfinite(base["sd"][name]):
+            out.append(f"{name}: no target can be planned for it (no sd predicted: see the note above)")
+            continue
+        if params[name] == 0:
+            out.append(f"{name}: its assumed value is 0, so a target in percent of it means nothing; give the "
+                       "value you expect in the vehicle file's [params]")
+            continue
         rel = base["sd"][name] / abs(params[name])
         if rel <= target:
             out.append(f"{name}: ±{100 * rel:.2g}% predicted, within the ±{100 * target:g}% target")
@@ -232,12 +255,27 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
              f"  parameter values assumed (not estimates): {params_source}"]
     for m in manoeuvres:
         lines.append(f"  drive: {m.label()}")
-    lines.append(f"  {'parameter':<14}{'value':>12}{'predicted sd':>15}{'':>9}  unit")
+    lines.append(f"  {'parameter':<14}{'value':>12}{'predicted sd':>15} {'':>11}  unit")
+    stuck, unseen = [], []
     for n in pred["names"]:
         v = params[n]
         sd = pred["sd"][n]
+        if not np.isfinite(sd):
+            unseen.append(n)
+            lines.append(f"  {n:<14}{v:>12.5g}{'-':>15} {'':>11}  {model.param(n).unit}")
+            continue
         rel = f"({100 * sd / abs(v):.1f}%)" if v else ""
-        lines.append(f"  {n:<14}{v:>12.5g}{sd:>15.4g}{rel:>9}  {model.param(n).unit}")
+        lines.append(f"  {n:<14}{v:>12.5g}{sd:>15.4g} {rel:>11}  {model.param(n).unit}")
+        lo, hi = model.bounds(n)
+        if not lo < v < hi or min(v - lo, hi - v) < 1e-3 * (hi - lo) or (model.param(n).log and v < 1.01 * lo):
+            stuck.append(f"{n} = {v:.4g}")
+    if unseen:
+        lines.append(f"  note: {', '.join(unseen)}: no sd predicted. The plan works from the steer's response, "
+                     "which carries nothing about a constant (it acts at 0 Hz); a fit finds it from the runs' means")
+    if stuck:
+        lines.append(f"  note: {', '.join(stuck)} at the edge of the plausible range: the values assumed hold no "
+                     "such effect (a run fitted for them showed none), so the sd predicted for it means little; "
+                     "give the value you expect (vehicle file [params]) or leave the effect out")
     sugg = suggestions(model, params, manoeuvres, noise, targets)
     for s_ in sugg:
         lines.append("  " + s_)
@@ -250,7 +288,8 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
     doc = {"model": model.name, "noise": noise_source, "includes_model_error": model_error,
            "estimator": pred["estimator"],
            "manoeuvres": [vars(m) for m in manoeuvres],
-           "params": {n: {"value": float(params[n]), "predicted_sd": float(pred["sd"][n]),
+           "params": {n: {"value": float(params[n]),
+                          "predicted_sd": float(pred["sd"][n]) if np.isfinite(pred["sd"][n]) else None,
                           "unit": model.param(n).unit} for n in pred["names"]},
            "suggestions": sugg}
     return "\n".join(lines), doc

@@ -72,6 +72,42 @@ def test_plan_cli_suggests_what_to_drive(tmp_path):
     assert bad.returncode != 0 and "not a number" in bad.stderr and "Traceback" not in bad.stderr
 
 
+@pytest.mark.parametrize("args, says", [
+    (["--target", "Iz=0%"], "above 0 and below 100"),  # was a ZeroDivisionError traceback
+    (["--target", "Iz=-5%"], "above 0 and below 100"),  # was 'for -20 s'
+    (["--target", "Iz=nan%"], "above 0 and below 100"),  # was 'for nan s'
+    (["--manoeuvre", "speed=4,bw=150"], "low-pass the data at 20 Hz"),  # was a scipy traceback
+    (["--manoeuvre", "speed=4,amp=90deg"], "beyond the steering's travel"),
+])
+def test_plan_refuses_what_cannot_be_planned_in_one_line(args, says):
+    base = ["--manoeuvre", "speed=4,amp=2deg,bw=4,dur=20"] if args[0] == "--target" else []
+    r = subprocess.run([tool("stid"), "plan", "--vehicle", str(REPO / "docs" / "examples" / "rc8.toml"), *base,
+                        *args], capture_output=True, text=True)
+    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_constant_offset_has_no_predicted_sd_rather_than_zero():
+    """The steer's response carries nothing about a sensor offset (0 Hz): a pseudo-inverse gave
+    it sd 0, infinite confidence. It is nan, and the others are predicted as without it."""
+    from stid.plan import plan_report
+
+    m = Manoeuvre(4.0, math.radians(2.0), 4.0, 20.0)
+    noise = datasheet_noise(vehicle=VEHICLE)
+    with_bias = predict(Model("bicycle+sensor_bias", VEHICLE), dict(TRUE, bias_r=0.0, bias_ay=0.0), [m], noise)
+    alone = predict(Model("bicycle", VEHICLE), TRUE, [m], noise)
+    assert np.isnan(with_bias["sd"]["bias_r"]) and np.isnan(with_bias["sd"]["bias_ay"])
+    for k in TRUE:
+        assert with_bias["sd"][k] == pytest.approx(alone["sd"][k], rel=1e-6)
+    text, doc = plan_report(Model("bicycle+sensor_bias", VEHICLE), dict(TRUE, bias_r=0.0, bias_ay=0.0), [m], noise,
+                            {}, "datasheets")
+    assert "no sd predicted" in text and doc["params"]["bias_r"]["predicted_sd"] is None
+    # a value at the edge of its range (a lag fitted to a run without one) is said to mean little
+    text, _ = plan_report(Model("bicycle+actuator_lag", VEHICLE), dict(TRUE, tau_steer=1e-6), [m], noise, {},
+                          "datasheets")
+    assert "tau_steer = 1e-06 at the edge of the plausible range" in text, text
+
+
 def test_output_error_prediction_is_the_bound_for_white_noise_and_above_it_for_coloured():
     model, m = Model("bicycle", VEHICLE), [Manoeuvre(4.0, 0.03, 4.0, 40.0)]
     white = datasheet_noise(vehicle=VEHICLE)
