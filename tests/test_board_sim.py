@@ -118,6 +118,22 @@ def test_watchdog_restarts_sampling_after_an_isr_fault(tmp_path):
     assert hellos[-1]["reset_cause"] == "watchdog"
 
 
+def test_after_a_watchdog_reset_the_hardware_scan_reads_the_sensors_again(tmp_path):
+    """A host stall past the watchdog's 2 s resets the board. The firmware then claimed its
+    DMA channel and state machine on the simulated chip from before the reset (the rp2 shim
+    held that one) while the ADC ran on the new: every sample after a restart read 0 (ay
+    -49 m/s^2, no steer). The chip after a reset is the one the firmware must use."""
+    simple_stimulus(tmp_path / "s.bin", board="pico", seconds=6.0, stalls=[(1_000_000, 2_500_000)])
+    dec, idx, arr, status, hellos = decode(run(tmp_path / "s.bin"))
+    assert hellos[-1]["reset_cause"] == "watchdog"
+    t = unwrap(arr["t_us"])
+    after = t > t[0] + 4_000_000
+    assert after.sum() > 500, "no samples after the restart"
+    for name in ("ay", "yaw"):
+        assert arr[name][after].min() > 200, (name, arr[name][after][:10])  # the stimulus, not 0
+    assert np.count_nonzero(arr["steer_us"][after]) > 0.9 * after.sum()
+
+
 def test_old_micropython_runs_soft_timer_and_says_so(tmp_path):
     # rp2 before 1.26 has no hard timers: the firmware falls back and HELLO tells.
     simple_stimulus(tmp_path / "s.bin", board="pico", seconds=2.0)

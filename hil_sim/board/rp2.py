@@ -7,7 +7,6 @@ import simboard
 _b = simboard.board()
 if _b.stim.board != "pico":
     raise ImportError("no module named 'rp2'")
-_hw = _b.rp2040
 
 
 class PIO:
@@ -34,8 +33,8 @@ def asm_pio(**kw):
 
 if _b.opts.get("rp2_pio", True):
     def StateMachine(sm_id, prog=None, freq=None, **kw):  # noqa: N802  (a class on the chip)
-        return _hw.make_sm(sm_id, prog, freq, **kw)
+        return _b.rp2040.make_sm(sm_id, prog, freq, **kw)  # (the chip of now: a reset makes a new one)
 
 if _b.opts.get("rp2_dma", True):
     def DMA():  # noqa: N802
-        return _hw.claim_dma()
+        return _b.rp2040.claim_dma()
