@@ -48,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--reconnect-after", type=float, default=2.0, help="replug after this many seconds")
     f.add_argument("--link", help="keep a symlink to the current pty here (stable across replug)")
     f.add_argument("--stall", action="append", default=[], metavar="AT:FOR",
-                   help="the host stops reading at AT s for FOR s: the MCU ring overruns (repeatable)")
+                   help="the host stops reading at AT s for FOR s: the MCU ring overruns; past the watchdog's "
+                        "2 s the car restarts (repeatable)")
     f.add_argument("--fault-log", help=argparse.SUPPRESS)
     o = ap.add_argument_group("faster than real time")
     o.add_argument("--fast", action="store_true", help="record straight to -o instead of serving a port")

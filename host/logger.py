@@ -241,6 +241,7 @@ class Logger:
         t0 = self.t0 = time.monotonic()
         rec.event("connect", time.time_ns(), f"{o.port} (USB serial {self.identity['usb_serial'] or 'none'})")
         watch = LinkWatch(t0)
+        boots_seen = 1
         last_stats = t0
         rate_n, rate_t, rate = 0, t0, 0.0
         while self.stop_reason is None:
@@ -265,6 +266,13 @@ class Logger:
                     "ends here (its last frames, after the 'boot' event, are the other board's); "
                     "start a new log for it")
             rate_n += rec.samples - before
+            if len(rec.boots) > boots_seen:  # the car restarted: say so now, not only in the summary
+                boots_seen = len(rec.boots)
+                r = rec.car_restarts()[-1]
+                self._warn(rec, "restart", f"the car restarted (reset cause: {r['reset_cause'] or 'not yet known'}"
+                           + (f", {r['gap_s']:.1f} s without samples" if r["gap_s"] is not None else "")
+                           + "): the run goes on as a new piece; a stall of the host past the car's 2 s watchdog, "
+                           "a brown-out or the reset button restarts it")
             if rec.stats.accepted == 0 and now - t0 > o.idle_timeout:
                 self._no_data(rec)
             log.maybe_flush(o.flush_period)
@@ -327,6 +335,12 @@ class Logger:
         log.flush()
         self._close_port()
         t_lost = time.monotonic()
+        status.close()
+        status._width = 0
+        wait = (f"at most {o.reconnect_timeout:g} s" if o.reconnect_timeout is not None
+                else "until it comes back (--reconnect-timeout to limit; Ctrl-C ends the log)")
+        print(f"stid-log: warning: {o.port} went away ({why}); {self.path} is complete up to here; waiting "
+              f"{wait} for the same board", file=sys.stderr, flush=True)
         while self.stop_reason is None:
             waited = time.monotonic() - t_lost
             if o.duration is not None and time.monotonic() - self.t0 >= o.duration:
@@ -351,6 +365,8 @@ class Logger:
             gap = {"from_s": lost_ns / 1e9, "to_s": back_ns / 1e9, "seconds": (back_ns - lost_ns) / 1e9}
             rec.gaps.append(gap)
             rec.event("reconnect", back_ns, f"{o.port} back after {gap['seconds']:.2f} s ({self._same_how})")
+            print(f"stid-log: {o.port} is back after {gap['seconds']:.1f} s ({self._same_how}); logging goes on in "
+                  f"{self.path}", file=sys.stderr, flush=True)
             for data, ns in held:
                 rec.feed(data, ns)
             log.flush()
@@ -424,8 +440,15 @@ class Logger:
 def summary_line(stats: dict) -> str:
     e = stats["errors"]
     bad = sum(e.values())
+    restarts = stats.get("car_restarts", [])
+    said = ""
+    if restarts:
+        what = ", ".join(f"{r['reset_cause'] or 'cause unknown'}"
+                         + (f", {r['gap_s']:.1f} s without samples" if r["gap_s"] is not None else "")
+                         for r in restarts)
+        said = f", {len(restarts)} restart{'s' if len(restarts) > 1 else ''} of the car ({what})"
     return (f"{stats['file']}: {stats['samples']} samples, {sum(stats['frames'].values())} frames, "
             f"{stats['lost_frames']} lost, {bad} rejected ({e['crc']} CRC), "
             f"{stats['missing_samples']} samples missing ({stats['mcu_overruns']} overrun, {stats.get('mcu_missed', 0)} timer periods missed on the car), "
-            f"{len(stats['gaps'])} unplug gaps "
+            f"{len(stats['gaps'])} unplug gaps{said} "
             f"[{stats['stop']}]")

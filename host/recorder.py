@@ -37,6 +37,8 @@ class _Boot:
         self.missed = 0  # timer periods the firmware could not sample (protocol 3 STATUS)
         self.si: SiView | None = None  # the SI converter, once this boot's HELLO is known
         self.t0_us: int | None = None  # first sample's MCU time: the SI view's t = 0
+        self.first_ns: int | None = None  # host times of the boot's first and last samples
+        self.last_ns: int | None = None
 
     def clock_fit(self) -> dict:
         # refitting is a least-squares solve: do it every 50 frames, not every frame
@@ -98,8 +100,9 @@ class Recorder:
             self._samples(group, host_ns)
 
     def _new_boot(self, boot_id: str, host_ns: int, reason: str) -> None:
-        if self.boot.id == UNKNOWN_BOOT and reason == "hello":
-            # the first HELLO names the boot we were already in (samples may have come first)
+        if self.boot.id.startswith(UNKNOWN_BOOT) and self.boot.hello is None and reason == "hello":
+            # the first HELLO names the boot we were already in (samples may have come first,
+            # or a restart was seen in the sample index before its HELLO arrived)
             self.boot.id = boot_id
             return
         self.boot = _Boot(boot_id)
@@ -158,6 +161,9 @@ class Recorder:
         # the last sample was taken before the frame was sent: its host time is an upper bound
         b.clock.add(float(t_mcu[-1]), host_us)
         b.last_index = prev
+        if b.first_ns is None:
+            b.first_ns = host_ns
+        b.last_ns = host_ns
         self.samples += len(arr)
         fit = b.clock_fit()
         log_ns = np.minimum((b.clock.to_host_us(t_mcu, fit) * 1000).astype(np.int64), host_ns)
@@ -208,12 +214,23 @@ class Recorder:
     def event(self, name: str, host_ns: int, detail: str = "") -> None:
         self.log.json("events", {"event": name, "detail": detail, "boot": self.boot.id}, host_ns)
 
+    def car_restarts(self) -> list[dict]:
+        """Each boot after the first: the car restarted (watchdog, brown-out, reset button).
+        Its reset cause (from its HELLO, when one came) and the seconds without samples."""
+        out = []
+        for before, b in zip(self.boots, self.boots[1:]):
+            cause = (b.hello or {}).get("reset_cause") if b.hello and "supplied_from" not in b.hello else None
+            gap = ((b.first_ns - before.last_ns) / 1e9 if b.first_ns is not None and before.last_ns is not None
+                   else None)
+            out.append({"boot": b.id, "reset_cause": cause, "gap_s": gap})
+        return out
+
     def stats_doc(self) -> dict:
         d = self.stats.as_dict()
         d.update({"samples": self.samples, "missing_samples": self.missing_samples,
                   "mcu_overruns": sum(b.overruns for b in self.boots),
                   "mcu_missed": sum(b.missed for b in self.boots), "gaps": self.gaps,
-                  "hello_seen": self.hello_seen})
+                  "car_restarts": self.car_restarts(), "hello_seen": self.hello_seen})
         return d
 
     def write_stats(self, host_ns: int) -> None:

@@ -158,6 +158,26 @@ def test_unplug_and_replug_resumes_in_the_same_file(tmp_path):
     assert len(jumps) >= 1  # the unplugged second is missing, and nothing else
     t_gap = (s["t_mcu_us"][jumps[0] + 1] - s["t_mcu_us"][jumps[0]]) / 1e6
     assert 0.5 < t_gap < 3.0
+    # said live, also when stderr is not a terminal (it printed nothing while it waited)
+    assert "went away" in err and "is complete up to here" in err and "is back after" in err, err
+
+
+def test_a_car_restart_is_said_live_and_in_the_summary(tmp_path):
+    """A host stall past the car's 2 s watchdog restarts the car: the summary said '0 samples
+    missing ... 0 unplug gaps' with a 2 s hole in the run and nothing live."""
+    sim = Sim("--duration", 8, "--still", 0.5, "--seed", 10, "--stall", "3:2.5")
+    out = tmp_path / "run.mcap"
+    lg = start_logger(sim.port, out, "--duration", 60)
+    sim.wait()
+    lg.send_signal(signal.SIGINT)
+    _, err = lg.communicate(timeout=30)
+    assert lg.returncode == 0, err
+    assert "warning: the car restarted" in err, err
+    summary = err.strip().splitlines()[-1]
+    assert "1 restart of the car (watchdog, " in summary and "s without samples" in summary, summary
+    log = read_log(out)
+    (r,) = log.stats["car_restarts"]
+    assert r["reset_cause"] == "watchdog" and 2.0 < r["gap_s"] < 4.0, r
 
 
 # -- bad input ------------------------------------------------------------------
@@ -294,7 +314,8 @@ def test_status_line_on_a_terminal_and_quiet_when_piped(tmp_path):
                             "--reconnect-timeout", "0.5"], capture_output=True, text=True, timeout=60)
     sim2.proc.wait(timeout=30)
     assert "\r" not in piped.stderr
-    assert len(piped.stderr.strip().splitlines()) <= 2  # the summary, and the port-gone note
+    # the unplug's warning, the port-gone note and the summary: a line each, no status line
+    assert len(piped.stderr.strip().splitlines()) <= 3, piped.stderr
 
 
 def test_a_recorded_run_is_never_replaced(tmp_path, monkeypatch):
