@@ -53,7 +53,8 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
             row[f"fit_{o}"] = float(f)
         speeds = [p.vx for p in res.predictions]
         row["speed"] = float(sum(speeds) / len(speeds)) if speeds else float("nan")
-        row["warnings"] = len(res.warnings)
+        # the loader's warnings too: the count is what `stid fit` prints for the same file
+        row["warnings"] = len(res.warnings) + sum(len(r.meta.get("warnings", [])) for r in runs)
         if do_diagnose:
             from stid.diagnose import diagnose
 
@@ -148,7 +149,12 @@ def drift_plot(rows, out: Path, params=("Cf", "Cr", "Iz")) -> Path | None:
     return out
 
 
+PARTLY_FAILED = 3  # exit code: some runs fitted, some not (each named, and a row with its error)
+
+
 def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_diagnose) -> int:
+    if Path(output).suffix.lower() not in (".csv", ".parquet"):  # before hours of fitting, not after
+        raise InputError(f"-o {output}: the table is written as .csv or .parquet; give a name ending in one")
     files = find_runs(pattern)
     if not Path(vehicle).exists():
         raise InputError(f"vehicle file {vehicle} does not exist")
@@ -161,4 +167,4 @@ def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_di
           + (f"; drift plot {plot}" if plot else ""), file=sys.stderr)
     for r in failed:
         print(f"  {r['run']}: {r['error']}", file=sys.stderr)
-    return 0 if len(failed) < len(rows) else 1
+    return 0 if not failed else PARTLY_FAILED if len(failed) < len(rows) else 1

@@ -26,7 +26,7 @@ def test_batch_on_local_processes(season, tmp_path):
     out = tmp_path / "results.csv"
     r = subprocess.run([tool("stid"), "batch", str(season), "--vehicle", VEHICLE, "--workers", "2",
                         "--diagnose", "-o", str(out)], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 3, r.stderr  # some runs fitted, one did not: a script must see it
     df = pd.read_csv(out)
     df[["error", "missing_effect"]] = df[["error", "missing_effect"]].fillna("")
     assert len(df) == 5
@@ -44,6 +44,10 @@ def test_batch_without_runs_fails_cleanly(tmp_path):
     r = subprocess.run([tool("stid"), "batch", str(tmp_path / "nothing*.mcap"), "--vehicle", VEHICLE],
                        capture_output=True, text=True)
     assert r.returncode != 0 and "no .mcap or .csv runs" in r.stderr and "Traceback" not in r.stderr
+    # a table format it does not write is refused before any fitting (it wrote CSV text as .xlsx)
+    x = subprocess.run([tool("stid"), "batch", str(tmp_path), "--vehicle", VEHICLE, "-o", str(tmp_path / "t.xlsx")],
+                       capture_output=True, text=True)
+    assert x.returncode == 2 and ".csv or .parquet" in x.stderr and not (tmp_path / "t.xlsx").exists(), x.stderr
 
 
 @pytest.mark.dask
@@ -54,7 +58,7 @@ def test_batch_on_a_local_dask_cluster(season, tmp_path):
         out = tmp_path / "dask.csv"
         r = subprocess.run([tool("stid"), "batch", str(season), "--vehicle", VEHICLE, "--scheduler",
                             cluster.scheduler_address, "-o", str(out)], capture_output=True, text=True, timeout=600)
-        assert r.returncode == 0, r.stderr
+        assert r.returncode == 3, r.stderr
         df = pd.read_csv(out)
         assert len(df) == 5 and df["error"].isna().sum() == 4
     finally:
