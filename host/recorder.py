@@ -38,6 +38,7 @@ class _Boot:
         self.si: SiView | None = None  # the SI converter, once this boot's HELLO is known
         self.t0_us: int | None = None  # first sample's MCU time: the SI view's t = 0
         self.first_ns: int | None = None  # host times of the boot's first and last samples
+        self.last_log_ns: int | None = None  # the last sample's log time (they never run back)
         self.last_ns: int | None = None
 
     def clock_fit(self) -> dict:
@@ -167,6 +168,13 @@ class Recorder:
         self.samples += len(arr)
         fit = b.clock_fit()
         log_ns = np.minimum((b.clock.to_host_us(t_mcu, fit) * 1000).astype(np.int64), host_ns)
+        # never back in time: a refit of the clock (every 50 frames, and from few points at the
+        # start) can move its offset back by milliseconds; the samples then share an instant
+        # until theirs catch up
+        if b.last_log_ns is not None:
+            log_ns = np.maximum(log_ns, b.last_log_ns)
+        log_ns = np.maximum.accumulate(log_ns)
+        b.last_log_ns = int(log_ns[-1])
         index = (np.repeat(np.asarray(first, dtype=np.int64), counts)
                  + np.arange(len(arr)) - np.repeat(np.cumsum([0] + counts[:-1]), counts)) % p.MOD
         if b.t0_us is None:

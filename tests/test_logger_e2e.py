@@ -1,5 +1,6 @@
 """stid-sim -> pseudo-terminal -> stid-log -> MCAP, as real processes, in real time."""
 
+import json
 import os
 import signal
 import subprocess
@@ -136,6 +137,17 @@ def test_sigint_finishes_the_file_cleanly(tmp_path):
     log = read_log(out)
     assert not log.truncated and len(log.samples) > 300
     assert "stid.stats" in log.metadata
+    # the samples' log times, in the order they were taken, never run back (a refit of the
+    # clock moved them back by up to 10 ms)
+    from mcap.reader import make_reader
+
+    from host.mcap_log import SI_TOPIC
+
+    with open(out, "rb") as f:
+        times = [(json.loads(m.data)["index"], m.log_time)
+                 for _, c, m in make_reader(f).iter_messages(topics=[SI_TOPIC], log_time_order=False)]
+    t = np.array([lt for _, lt in sorted(times)], dtype=np.int64)
+    assert len(t) > 300 and np.all(np.diff(t) >= 0), np.diff(t).min()
 
 
 def test_unplug_and_replug_resumes_in_the_same_file(tmp_path):
