@@ -126,6 +126,11 @@ def _replace_table(text: str, name: str, values: dict) -> str:
 
 
 def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: str | None = None) -> int:
+    out = Path(output or vehicle_path)
+    if out.is_dir() or not out.absolute().parent.is_dir():  # said first, not after the results
+        raise InputError(f"-o {out}: " + ("is a directory; give a file path" if out.is_dir() else
+                                         f"the directory {out.absolute().parent} does not exist; create it or "
+                                         "give another path"))
     vehicle = load_vehicle(vehicle_path)
     st = standstill(standstill_path, vehicle)
     sensors = dict(vehicle.sensors)
@@ -143,7 +148,6 @@ def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: s
         text = _replace_table(text, "steering", steering)
         print(f"steering: centre {sc['center_us']:.1f} us, {sc['us_per_rad']:.1f} us per rad "
               f"(from {sc['_points']} steady stretches)", file=sys.stderr)
-    out = Path(output or vehicle_path)
     if out.exists() and output is None:
         out.with_suffix(out.suffix + ".bak").write_text(Path(vehicle_path).read_text())
     out.write_text(text)

@@ -61,3 +61,12 @@ def test_calibrate_refuses_a_moving_car(tmp_path):
                         str(REPO / "docs" / "examples" / "rc8.toml"), "-o", str(tmp_path / "o.toml")],
                        capture_output=True, text=True)
     assert r.returncode != 0 and "standing still" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_calibrate_names_an_unwritable_output_before_its_results(tmp_path):
+    """It printed the whole calibration, then 'error: No such file or directory', exit 1."""
+    r = subprocess.run([tool("stid"), "calibrate", str(tmp_path / "any.mcap"), "--vehicle",
+                        str(REPO / "docs" / "examples" / "rc8.toml"), "-o", str(tmp_path / "nodir" / "c.toml")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "the directory" in r.stderr and "does not exist" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
