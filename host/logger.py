@@ -21,6 +21,7 @@ from __future__ import annotations
 import errno
 import os
 import signal
+import stat
 import sys
 import time
 from dataclasses import dataclass
@@ -99,6 +100,10 @@ def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial
                             "(sudo usermod -aG dialout $USER) and log in again") from None
         if err == errno.EBUSY:
             raise PortError(f"{path} is busy: another program (a serial monitor?) has it open") from None
+        if err == errno.ENOTTY or (os.path.exists(path) and not stat.S_ISCHR(os.stat(path).st_mode)):
+            raise PortError(f"{path} is not a serial port (it is a {'directory' if os.path.isdir(path) else 'file'}): "
+                            "give the car's port, e.g. /dev/ttyACM0 or /dev/ttyUSB0; to read a recorded "
+                            "file use stid, e.g. 'stid fit FILE'") from None
         raise PortError(f"cannot open {path}: {e}") from None
 
 

@@ -209,6 +209,11 @@ def test_port_that_does_not_exist(tmp_path):
     r = run_logger("/dev/ttyUSB99", "-o", tmp_path / "x.mcap")
     assert_clean_failure(r, 2, "does not exist")
     assert not (tmp_path / "x.mcap").exists()
+    # a recorded file given as the port ('Could not configure port: (25, Inappropriate ioctl ...)')
+    (tmp_path / "run.mcap").write_bytes(b"\x89MCAP0\r\n")
+    r = run_logger(tmp_path / "run.mcap", "-o", tmp_path / "y.mcap")
+    assert_clean_failure(r, 2, "is not a serial port (it is a file)", "stid fit FILE")
+    assert not (tmp_path / "y.mcap").exists()
 
 
 NOBODY = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
