@@ -209,8 +209,13 @@ def _chunk(body: memoryview, out: Scan, skip_ids: set, skip_topics) -> None:
     data = body[head:]
     if comp == "zstd":
         try:
+            # the frame declares its own size, which damage can make any number: the
+            # decompressor would allocate it (a MemoryError at petabytes). It must be the chunk's.
+            declared = zstandard.frame_content_size(data)
+            if declared not in (-1, usize):
+                raise _Bad("a chunk that does not decompress (its frame's size differs from the chunk's)")
             data = zstandard.ZstdDecompressor().decompress(data, max_output_size=usize)
-        except zstandard.ZstdError:
+        except (zstandard.ZstdError, MemoryError):
             raise _Bad("a chunk that does not decompress") from None
     elif comp == "lz4":
         import lz4.frame  # optional, as in mcap itself

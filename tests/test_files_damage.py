@@ -203,6 +203,22 @@ def test_a_thousand_damaged_files_never_lie(small_log, tmp_path):
     assert outcomes["damaged"] > 100 and outcomes["truncated"] > 50  # the damage really happened
 
 
+def test_a_chunk_whose_frame_claims_a_petabyte_is_damage_not_a_memory_error():
+    """Damage to a zstd frame's header can make it declare any content size; the decompressor
+    allocates what the frame declares: a MemoryError escaped the reader (found when the
+    thousand damaged files above happened to hit it). The frame's size must be the chunk's."""
+    from host.mcap_scan import MAX_CHUNK, Scan, _Bad, _chunk
+
+    # a zstd frame: magic, a descriptor for an 8-byte content size in a single segment, 2^50,
+    # then one empty raw block
+    frame = b"\x28\xb5\x2f\xfd" + bytes([0xE0]) + struct.pack("<Q", 1 << 50) + b"\x01\x00\x00"
+    usize = 1000
+    assert usize < MAX_CHUNK
+    body = struct.pack("<QQQII", 0, 1, usize, 0, 4) + b"zstd" + struct.pack("<Q", len(frame)) + frame
+    with pytest.raises(_Bad, match="does not decompress"):
+        _chunk(memoryview(body), Scan(), set(), frozenset())
+
+
 def test_foreign_mcap_is_refused_in_one_line(tmp_path):
     from mcap.writer import Writer
 
