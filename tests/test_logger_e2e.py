@@ -177,7 +177,7 @@ def test_unplug_and_replug_resumes_in_the_same_file(tmp_path):
 def test_a_car_restart_is_said_live_and_in_the_summary(tmp_path):
     """A host stall past the car's 2 s watchdog restarts the car: the summary said '0 samples
     missing ... 0 unplug gaps' with a 2 s hole in the run and nothing live."""
-    sim = Sim("--duration", 8, "--still", 0.5, "--seed", 10, "--stall", "3:2.5")
+    sim = Sim("--duration", 5, "--still", 0.5, "--seed", 10, "--stall", "1.5:2.5")
     out = tmp_path / "run.mcap"
     lg = start_logger(sim.port, out, "--duration", 60)
     sim.wait()
