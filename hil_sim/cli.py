@@ -127,7 +127,11 @@ def main(argv=None) -> int:
             faults = LinkFaults(ber=args.ber, drop_rate=args.drop_rate, insert_rate=args.insert_rate,
                                 seed=args.seed)
             stats = record(cfg, args.output, csv_path=args.csv, truth_path=args.truth, faults=faults)
-            print(f"wrote {args.output}: {stats['samples']} samples", file=sys.stderr)
+            lossy = args.ber or args.drop_rate or args.insert_rate
+            print(f"wrote {args.output}: {stats['samples']} samples"
+                  + (f" ({stats['lost_frames']} frames lost, {sum(stats['errors'].values())} rejected, "
+                     f"{stats['missing_samples']} samples missing on the faulty link)" if lossy else ""),
+                  file=sys.stderr)
             return 0
         from hil_sim.faults import LinkFaults
         from hil_sim.serve import ServeOptions, serve

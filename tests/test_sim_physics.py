@@ -2,6 +2,7 @@
 what it should (checked against formulas written here, not against stid)."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -213,3 +214,15 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, ar
                        capture_output=True, text=True)
     assert r.returncode == 2 and says.format(tmp=tmp_path) in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and not list(tmp_path.iterdir()), r.stderr
+
+
+def test_a_lossy_fast_run_says_what_the_link_lost(tmp_path):
+    """--fast with link faults printed only the samples written, not what the faults took."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "hil_sim.cli", "--fast", "--duration", "1", "--ber", "1e-3",
+                        "-o", str(tmp_path / "x.mcap")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"\((\d+) frames lost, (\d+) rejected, (\d+) samples missing on the faulty link\)", r.stderr)
+    assert m and int(m.group(1)) > 0 and int(m.group(3)) > 0, r.stderr
