@@ -45,7 +45,7 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_fit(args) -> int:
-    from stid.analysis.noise_floor import noise_floor_uncertainty
+    from stid.analysis.noise_floor import submit_floor
     from stid.fit.fitting import fit
     from stid.progress import Progress
     from stid.workers import worker_pool
@@ -55,7 +55,7 @@ def _cmd_fit(args) -> int:
     judged_on = _judged_stretches(held if held else runs, bool(held))
     # the noise floor needs only the data: it is estimated on the other core while the model is fitted
     with Progress(f"fitting {args.model} ({args.method})") as prog, worker_pool(1) as pool:
-        floor = pool.submit(noise_floor_uncertainty, judged_on) if pool and judged_on is not None else None
+        floor = submit_floor(pool, judged_on) if pool and judged_on is not None else None
         res = fit(runs, vehicle, args.model, args.method)
         prog.step("the noise floor")
         judged, floor, floor_se = _judge(res, args.model, vehicle, judged_on, held, floor)

@@ -68,7 +68,7 @@ def breakdown(predictions, ay_edges=(0.0, 2.0, 4.0, 6.0, np.inf)) -> Breakdown:
 def compare(runs, vehicle, models: list[str], method: str = "time", progress=None, validate=None) -> list[dict]:
     """Fit each model to ``runs``; with ``validate`` (other runs) judge every number on those,
     the parameters held at the fit's."""
-    from stid.analysis.noise_floor import noise_floor_uncertainty
+    from stid.analysis.noise_floor import noise_floor_uncertainty, submit_floor
     from stid.fit import dataset
     from stid.models.model import Model
     from stid.workers import worker_pool
@@ -86,7 +86,7 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
     held = dataset.held_out_stretches(validate) if validate else None
     judged_on = held if held is not None else (stretches if stretches is not None else dataset.dynamic_stretches(runs))
     with worker_pool(1) as pool:  # the noise floor needs only the data: on the other core, beside the fits
-        floor = pool.submit(noise_floor_uncertainty, judged_on) if pool else None
+        floor = submit_floor(pool, judged_on) if pool else None
         entries = _fit_each(runs, vehicle, models, method, progress, validate, stretches, held)
         floor, floor_se = floor.result() if floor is not None else noise_floor_uncertainty(judged_on)
     for e in entries:

@@ -506,7 +506,7 @@ def worker_pool():
     share it instead of each loading it."""
     from stid.models.lpv import load_compiled
 
-    return workers.worker_pool(WORKERS if WORKERS > 1 else 0, before_fork=load_compiled)
+    return workers.worker_pool(WORKERS, before_fork=load_compiled)
 
 
 def _in_workers(model_name: str) -> bool:
