@@ -266,8 +266,7 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
             continue
         rel = f"({100 * sd / abs(v):.1f}%)" if v else ""
         lines.append(f"  {n:<14}{v:>12.5g}{sd:>15.4g} {rel:>11}  {model.param(n).unit}")
-        lo, hi = model.bounds(n)
-        if not lo < v < hi or min(v - lo, hi - v) < 1e-3 * (hi - lo) or (model.param(n).log and v < 1.01 * lo):
+        if model.at_bound(n, v):
             stuck.append(f"{n} = {v:.4g}")
     if unseen:
         lines.append(f"  note: {', '.join(unseen)}: no sd predicted. The plan works from the steer's response, "

@@ -97,18 +97,7 @@ def fit_groups(model_name: str, vehicle, stretches, init: dict, mapper=map) -> d
 
 
 def at_bound(result, names, model) -> list:
-    out = []
-    for n in names:
-        lo, hi = model.bounds(n)
-        v = result.value(n)
-        p = model.param(n)
-        if p.log:
-            a, b, x = np.log(lo), np.log(hi), np.log(max(v, 1e-300))
-        else:
-            a, b, x = lo, hi, v
-        if x - a < 1e-3 * (b - a) or b - x < 1e-3 * (b - a):
-            out.append(n)
-    return out
+    return [n for n in names if model.at_bound(n, result.value(n))]
 
 
 def disagreements(parts: dict, names) -> list:

@@ -128,6 +128,14 @@ class Model:
         p = self.param(name)
         return p.value("lower", self.vehicle), p.value("upper", self.vehicle)
 
+    def at_bound(self, name: str, value: float, tol: float = 1e-3) -> bool:
+        """Whether ``value`` of parameter ``name`` sits within ``tol`` of its range's span from
+        an end (the span in log for a log parameter): the data pushed it, or nothing held it."""
+        lo, hi = self.bounds(name)
+        if self.param(name).log:
+            lo, hi, value = np.log(lo), np.log(hi), np.log(max(value, 1e-300))
+        return value - lo < tol * (hi - lo) or hi - value < tol * (hi - lo)
+
     def owner(self, name: str) -> str:
         for e in self.effects:
             if any(p.name == name for p in e.params):
