@@ -237,9 +237,13 @@ class Logger:
     def _warn(self, rec: Recorder, event: str, text: str) -> None:
         """A warning a person must see now, and an event in the file."""
         rec.event(event, time.time_ns(), text)
+        self._say(f"warning: {text}")
+
+    def _say(self, text: str) -> None:
+        """A line for the person logging, terminal or not (the status line makes way for it)."""
         self.status.close()
         self.status._width = 0
-        print(f"stid-log: warning: {text}", file=sys.stderr, flush=True)
+        print(f"stid-log: {text}", file=sys.stderr, flush=True)
 
     def _loop(self, log: McapLog, rec: Recorder, status: StatusLine) -> dict:
         o = self.opts
@@ -340,12 +344,11 @@ class Logger:
         log.flush()
         self._close_port()
         t_lost = time.monotonic()
-        status.close()
-        status._width = 0
         wait = (f"at most {o.reconnect_timeout:g} s" if o.reconnect_timeout is not None
                 else "until it comes back (--reconnect-timeout to limit; Ctrl-C ends the log)")
-        print(f"stid-log: warning: {o.port} went away ({why}); {self.path} is complete up to here; waiting "
-              f"{wait} for the same board", file=sys.stderr, flush=True)
+        # (the file has its 'disconnect' event already: this is for the person only)
+        self._say(f"warning: {o.port} went away ({why}); {self.path} is complete up to here; waiting {wait} "
+                  "for the same board")
         while self.stop_reason is None:
             waited = time.monotonic() - t_lost
             if o.duration is not None and time.monotonic() - self.t0 >= o.duration:
@@ -370,8 +373,8 @@ class Logger:
             gap = {"from_s": lost_ns / 1e9, "to_s": back_ns / 1e9, "seconds": (back_ns - lost_ns) / 1e9}
             rec.gaps.append(gap)
             rec.event("reconnect", back_ns, f"{o.port} back after {gap['seconds']:.2f} s ({self._same_how})")
-            print(f"stid-log: {o.port} is back after {gap['seconds']:.1f} s ({self._same_how}); logging goes on in "
-                  f"{self.path}", file=sys.stderr, flush=True)
+            self._say(f"{o.port} is back after {gap['seconds']:.1f} s ({self._same_how}); logging goes on in "
+                      f"{self.path}")
             for data, ns in held:
                 rec.feed(data, ns)
             log.flush()

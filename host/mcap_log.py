@@ -150,14 +150,13 @@ OWN_CHUNKS = {"stid.chunks": "own"}
 SI_BATCH = 5000  # per-sample messages held before they are written as their own chunk(s)  # JavaScript (Foxglove) reads integers exactly only up to here
 
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-
-
 def holds_a_log(path) -> bool:
     """Whether ``path`` is an MCAP file (a recorded run, which nothing of stid overwrites)."""
+    from host.mcap_scan import MAGIC
+
     try:
         with open(path, "rb") as f:
-            return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+            return f.read(len(MAGIC)) == MAGIC
     except OSError:
         return False
 

@@ -227,7 +227,7 @@ class Recorder:
         Its reset cause (from its HELLO, when one came) and the seconds without samples."""
         out = []
         for before, b in zip(self.boots, self.boots[1:]):
-            cause = (b.hello or {}).get("reset_cause") if b.hello and "supplied_from" not in b.hello else None
+            cause = b.hello.get("reset_cause") if b.hello and "supplied_from" not in b.hello else None
             gap = ((b.first_ns - before.last_ns) / 1e9 if b.first_ns is not None and before.last_ns is not None
                    else None)
             out.append({"boot": b.id, "reset_cause": cause, "gap_s": gap})
