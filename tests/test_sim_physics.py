@@ -183,6 +183,9 @@ def test_an_effect_file_adds_its_loads_and_signals(tmp_path):
     ("def sensor_signals(t, s, car):\n    s['r'] = 1.1 * s['r']\n",
      "sensor_signals must return the dict of signals it was given"),
     ("def steer_angle(delta, car):\n    pass\n", "steer_angle must return the road-wheel angle"),
+    # an array of another length, written into the dict it was given and returned
+    ("def sensor_signals(t, s, car):\n    s['r'] = s['r'][::2]\n    return s\n",
+     "sensor_signals must return the dict of signals it was given"),
 ])
 def test_a_bad_effect_file_is_one_line_and_exit_2(tmp_path, text, says):
     import subprocess
