@@ -44,7 +44,7 @@ from stid.analysis.residuals import analyse
 from stid.analysis.unexplained import describe_unexplained
 from stid.fit import dataset
 from stid.fit.fitting import fit
-from stid.models.effect import available_effects
+from stid.models.effect import Effect, available_effects
 from stid.models.model import Model, parse_model_name
 from stid.models.params import unit_suffix
 
@@ -201,7 +201,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
     level = ALPHA / max(len(todo), 1)
     if progress:
         progress.step(f"screening {len(todo)} effects")
-    to_fit = screen_candidates(model_name, todo, vehicle, stretches, base, n_eff, level)
+    to_fit = screen_candidates(model_name, todo, vehicle, stretches, base, n_eff, level, pool)
     results = _fit_candidates(model_name, [c.effect for c in to_fit], vehicle, stretches, base.all_params(),
                               progress, pool, starts=[c.start for c in to_fit])
     for c, res in zip(to_fit, results):
@@ -231,7 +231,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         else:
             c.passes = True
     todo.sort(key=lambda c: (not c.passes, -c.lr))
-    _name_one(todo, model_name, vehicle, stretches, progress, pool, n_eff)
+    _name_one(todo, model_name, vehicle, stretches, progress, pool, n_eff, floor)
     for c in todo:
         if c.result is not None:
             c.explanation = explain(c, base, stretches)
@@ -242,7 +242,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
 MAX_FULL_FITS = 4  # candidates the screen passes on to a full fit, best first
 
 
-def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level) -> list:
+def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level, pool=None) -> list:
     """The candidates worth a full fit, best first; the others get the screen's verdict.
 
     A score test (Lagrange multiplier): at the current model's fit, the candidate with
@@ -255,7 +255,7 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
     whose off value lies far outside its range (a friction coefficient of 1e6) is stepped
     to its nearest bound instead (the secant, scaled by a coefficient >= 0). An effect
     with no off value cannot be screened and is always fitted."""
-    always, screened = linearised_steps(model_name, cands, vehicle, stretches, base, n_eff, level)
+    always, screened = linearised_steps(model_name, cands, vehicle, stretches, base, n_eff, level, pool)
     screened.sort(key=lambda c: -c.lr)
     keep = []
     for c in screened:
@@ -276,71 +276,132 @@ def screen_candidates(model_name, cands, vehicle, stretches, base, n_eff, level)
     return keep + always
 
 
-def linearised_steps(model_name, cands, vehicle, stretches, base, n_eff, level):
+def linearised_steps(model_name, cands, vehicle, stretches, base, n_eff, level, pool=None):
     """The screen's step (see screen_candidates) for each candidate, from ``base``, a fit of
     ``model_name``: sets each one's ``lr``, ``p_value``, ``screen``, ``gain`` and ``start``.
-    Returns (the candidates it cannot step: no off value, the stepped ones)."""
-    from scipy.optimize import lsq_linear
+    Returns (the candidates it cannot step: no off value, the stepped ones). The steps are
+    independent: with a ``pool`` they are shared between the workers and this process."""
+    always = [c for c in cands if not _offable(c.effect)]
+    stepped = [c for c in cands if _offable(c.effect)]
+    if not stepped:
+        return always, stepped
+    origin = _step_origin(model_name, vehicle, stretches, base)
+    in_workers = all(_in_workers(f"{model_name}+{c.effect}") for c in stepped)
+    # one share per core (not per process: a worker may still be busy with the noise floor)
+    shares = _shares(stepped, WORKERS if pool is not None and in_workers else 1, cost=_step_cost)
+    jobs = [(origin, [c.effect for c in share], n_eff, level) for share in shares]
+    for share, found in zip(shares, _mapper(pool if in_workers else None, model_name)(_steps, jobs)):
+        for c, values in zip(share, found):
+            for k, v in values.items():
+                setattr(c, k, v)
+    return always, stepped
 
+
+def _offable(effect: str) -> list:
+    """The effect's parameters that have an off value (where the effect is absent)."""
+    return [q for q in available_effects()[effect].params if q.zero is not None]
+
+
+ITERATED_SIM_COST = 3  # a nonlinear effect's simulation is iterated: about three linear ones (measured)
+
+
+def _step_cost(c) -> float:
+    """A candidate's linearised step in simulations: one at the off value, one per parameter."""
+    iterated = available_effects()[c.effect].force_correction is not Effect.force_correction  # (Effect.nonlinear)
+    return (1 + len(_offable(c.effect))) * (ITERATED_SIM_COST if iterated else 1)
+
+
+def _shares(items: list, n: int, cost) -> list:
+    """``items`` in at most ``n`` shares of about equal ``cost``, each in the items' order
+    (the largest first to the share that has least)."""
+    shares = [[] for _ in range(min(n, len(items)))]
+    load = [0.0] * len(shares)
+    for i in sorted(range(len(items)), key=lambda i: -cost(items[i])):
+        k = load.index(min(load))
+        shares[k].append(i)
+        load[k] += cost(items[i])
+    return [[items[i] for i in sorted(share)] for share in shares]
+
+
+@dataclass
+class _StepOrigin:
+    """Where every candidate's linearised step starts: the current model's fit, its weighted
+    residuals and their change with each of its own parameters (shared by every candidate)."""
+    model_name: str
+    vehicle: object
+    stretches: list
+    p0: dict
+    names: list
+    fit_now: dict
+    sigma: np.ndarray
+    r0: np.ndarray
+    cols: list
+
+
+def _step_origin(model_name, vehicle, stretches, base) -> _StepOrigin:
     sigma = np.asarray(base.extra.get("sigma", np.ones(2)), float)
-
-    def resid(model, p):
-        return _residuals(model, p, stretches, sigma)
-
     m0 = Model(model_name, vehicle)
     p0 = dict(base.all_params())
-    r0 = resid(m0, p0)  # (n, 2)
+    r0 = _residuals(m0, p0, stretches, sigma)  # (n, 2)
     cols = []
-    for n in base.names:  # the model's own parameters: shared by every candidate
+    for n in base.names:
         lo, hi = m0.bounds(n)
         h = 1e-4 * (abs(p0[n]) if m0.param(n).log else (hi - lo))
-        cols.append((resid(m0, dict(p0, **{n: p0[n] + h})) - r0) / h)
-    always, screened = [], []
-    for c in cands:
-        cls = available_effects()[c.effect]
-        offable = [q for q in cls.params if q.zero is not None]
-        if not offable:
-            always.append(c)
-            continue
-        m = Model(f"{model_name}+{c.effect}", vehicle)
-        q0 = dict(p0, **{q.name: (q.zero if q.zero is not None else q.value("init", vehicle)) for q in cls.params})
-        rq = resid(m, q0)
-        J, lo_b, hi_b = list(cols), [-np.inf] * len(cols), [np.inf] * len(cols)
-        moves = []  # (effect parameter, its off value, the change one unit of its coefficient makes)
-        for q in offable:  # a coefficient on the change a small step away from the zero makes
-            lo, hi = m.bounds(q.name)
-            z = q0[q.name]
-            if z > hi or z < lo - (hi - lo):  # an off value far outside the range (mu = 1e6): the secant
-                h = (hi if z > hi else lo) - z  # to the nearest bound, scaled by c >= 0
-                c_lo, c_hi = 0.0, np.inf
-            else:
-                d0 = q.value("init", vehicle)
-                h = 0.01 * abs(d0) if d0 != 0 else 1e-3 * (hi - lo)
-                c_lo, c_hi = (0.0, np.inf) if q.log else sorted(((lo - z) / h, (hi - z) / h))
-            J.append(resid(m, dict(q0, **{q.name: z + h})) - rq)
-            moves.append((q.name, z, h))
-            lo_b.append(c_lo)
-            hi_b.append(c_hi)
-        A = np.stack([j.ravel() for j in J], axis=1)
-        scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)  # columns of N/rad and metres alike
-        step = lsq_linear(A / scale, -rq.ravel(), bounds=(np.array(lo_b) * scale, np.array(hi_b) * scale))
-        r1 = (rq.ravel() + (A / scale) @ step.x).reshape(-1, 2)
-        ratio = np.sum(rq ** 2, axis=0) / np.maximum(np.sum(r1 ** 2, axis=0), 1e-300)
-        c.lr = max(float(n_eff * np.sum(np.log(ratio))), 0.0)
-        c.p_value = float(chdtrc(len(offable), c.lr))
-        c.level = level
-        fit_now = {o: base.fit[o] for o in OUTS}
-        c.screen = {"fit": {o: 100.0 - (100.0 - fit_now[o]) / np.sqrt(ratio[i]) for i, o in enumerate(OUTS)}}
-        # where the step lands: a start for the full fit (often far closer than the effect at
-        # its off value or at its default; the fit takes the best of the three)
-        x = step.x / scale
-        start = dict(q0, **{n: p0[n] + x[i] for i, n in enumerate(base.names)})
-        start.update({name: z + x[len(cols) + j] * h for j, (name, z, h) in enumerate(moves)})
-        c.start = {n: min(max(v, m.bounds(n)[0] * (1.5 if m.param(n).log else 1.0)), m.bounds(n)[1])
-                   for n, v in start.items() if n in m.param_names}
-        c.gain = {o: c.screen["fit"][o] - fit_now[o] for o in OUTS}
-        screened.append(c)
-    return always, screened
+        cols.append((_residuals(m0, dict(p0, **{n: p0[n] + h}), stretches, sigma) - r0) / h)
+    return _StepOrigin(model_name, vehicle, stretches, p0, list(base.names), {o: base.fit[o] for o in OUTS},
+                       sigma, r0, cols)
+
+
+def _steps(args) -> list:
+    """A share of the screen's steps (a worker's job): one dict of results per effect."""
+    origin, effects, n_eff, level = args
+    return [_step(origin, e, n_eff, level) for e in effects]
+
+
+def _step(o: _StepOrigin, effect: str, n_eff: float, level: float) -> dict:
+    """One candidate's linearised step from ``o`` (see screen_candidates)."""
+    from scipy.optimize import lsq_linear
+
+    def resid(model, p):
+        return _residuals(model, p, o.stretches, o.sigma)
+
+    cls = available_effects()[effect]
+    offable = _offable(effect)
+    m = Model(f"{o.model_name}+{effect}", o.vehicle)
+    q0 = dict(o.p0, **{q.name: (q.zero if q.zero is not None else q.value("init", o.vehicle)) for q in cls.params})
+    rq = resid(m, q0)
+    J, lo_b, hi_b = list(o.cols), [-np.inf] * len(o.cols), [np.inf] * len(o.cols)
+    moves = []  # (effect parameter, its off value, the change one unit of its coefficient makes)
+    for q in offable:  # a coefficient on the change a small step away from the zero makes
+        lo, hi = m.bounds(q.name)
+        z = q0[q.name]
+        if z > hi or z < lo - (hi - lo):  # an off value far outside the range (mu = 1e6): the secant
+            h = (hi if z > hi else lo) - z  # to the nearest bound, scaled by c >= 0
+            c_lo, c_hi = 0.0, np.inf
+        else:
+            d0 = q.value("init", o.vehicle)
+            h = 0.01 * abs(d0) if d0 != 0 else 1e-3 * (hi - lo)
+            c_lo, c_hi = (0.0, np.inf) if q.log else sorted(((lo - z) / h, (hi - z) / h))
+        J.append(resid(m, dict(q0, **{q.name: z + h})) - rq)
+        moves.append((q.name, z, h))
+        lo_b.append(c_lo)
+        hi_b.append(c_hi)
+    A = np.stack([j.ravel() for j in J], axis=1)
+    scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)  # columns of N/rad and metres alike
+    step = lsq_linear(A / scale, -rq.ravel(), bounds=(np.array(lo_b) * scale, np.array(hi_b) * scale))
+    r1 = (rq.ravel() + (A / scale) @ step.x).reshape(-1, 2)
+    ratio = np.sum(rq ** 2, axis=0) / np.maximum(np.sum(r1 ** 2, axis=0), 1e-300)
+    lr = max(float(n_eff * np.sum(np.log(ratio))), 0.0)
+    screen = {"fit": {o_: 100.0 - (100.0 - o.fit_now[o_]) / np.sqrt(ratio[i]) for i, o_ in enumerate(OUTS)}}
+    # where the step lands: a start for the full fit (often far closer than the effect at
+    # its off value or at its default; the fit takes the best of the three)
+    x = step.x / scale
+    start = dict(q0, **{n: o.p0[n] + x[i] for i, n in enumerate(o.names)})
+    start.update({name: z + x[len(o.cols) + j] * h for j, (name, z, h) in enumerate(moves)})
+    start = {n: min(max(v, m.bounds(n)[0] * (1.5 if m.param(n).log else 1.0)), m.bounds(n)[1])
+             for n, v in start.items() if n in m.param_names}
+    return {"lr": lr, "p_value": float(chdtrc(len(offable), lr)), "level": level, "screen": screen,
+            "start": start, "gain": {o_: screen["fit"][o_] - o.fit_now[o_] for o_ in OUTS}}
 
 
 def _indistinct(top, c) -> bool:
@@ -358,9 +419,10 @@ def _indistinct(top, c) -> bool:
     return top.lr - c.lr < chdtri(max(extra, 1), c.level)
 
 
-def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff=None) -> None:
+def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff=None, floor=None) -> None:
     """Of the candidates that pass on their own, name at most one: the best, and only
-    when its evidence holds. The others are the same symptom (or not separable)."""
+    when its evidence holds. The others are the same symptom (or not separable).
+    ``floor``: the noise floor per output, when known (see _ahead_of_the_rescue)."""
     passing = [c for c in ranked if c.passes]
     if not passing:
         return
@@ -377,26 +439,37 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
         else:
             c.same_symptom_as = top.effect
             c.why_not = f"the same symptom as {top.effect} (--peel tests it again once that is added)"
+    # the partners of the rescue below: the other passing candidates, and those the screen passed
+    # over only for want of room
+    others = passing[1:] + [c for c in ranked if c.result is None and c.screen.get("why") == "capped"]
+    ahead = _ahead_of_the_rescue(pool, model_name, top, others, vehicle, stretches, n_eff, floor)
     if progress:
         progress.step(f"checking {top.effect} at each speed")
     name = f"{model_name}+{top.effect}"
+    # with the rescue's start in a worker the check's refits run here, one after the other: two
+    # processes busy on two cores (beside it in the workers, the check and the start slow each other)
     top.evidence = top.evidence_alone = check_evidence(name, top.effect, vehicle, stretches, top.result,
-                                                       _mapper(pool, name))
+                                                       map if ahead is not None else _mapper(pool, name))
     if not top.evidence.holds:
         # two effects missing at once: the second bends the first's parameter differently at
         # each speed. The first is still named if its value holds once one of the other
         # passing candidates is fitted with it (that one is then tested in the next round).
-        # (candidates the screen passed over only for want of room are partners too)
-        capped = [c for c in ranked if c.result is None and c.screen.get("why") == "capped"]
-        partners = _rank_partners(model_name, top, passing[1:] + capped, vehicle, stretches, n_eff)[:4]
+        first = None
+        if ahead is not None and not ahead.cancel():
+            order, first = ahead.result()
+            partners = [next(o for o in others if o.effect == e) for e in order]
+        else:
+            partners = _rank_partners(model_name, top, others, vehicle, stretches, n_eff)
+        partners = partners[:4]
         names = [f"{model_name}+{top.effect}+{o.effect}" for o in partners]
-        inits = [dict(o.result.all_params() if o.result is not None else {}, **top.result.all_params())
-                 for o in partners]
         # the joint fits are independent: they start in the workers one per core ahead of need,
         # and are read here in order, up to the first whose evidence holds (the same answer as
-        # fitting them one after another; the likeliest partner is first, so usually one fit)
+        # fitting them one after another; the likeliest partner is first, so usually one fit).
+        # When the first was fitted ahead, the next starts only when needed: started now, it would
+        # slow the first's check, which usually ends the rescue
         joint = _Ahead(pool if all(_in_workers(n2) for n2 in names) else None, _fit_joint,
-                       [(n2, vehicle, stretches, init) for n2, init in zip(names, inits)], window=WORKERS)
+                       _joint_jobs(model_name, top, partners, _alone(others), vehicle, stretches),
+                       window=WORKERS if first is None else 1, known={0: first} if first is not None else None)
         for i, (other, name2) in enumerate(zip(partners, names)):
             if progress:
                 progress.step(f"checking {top.effect} with {other.effect}")
@@ -412,10 +485,36 @@ def _name_one(ranked, model_name, vehicle, stretches, progress, pool=None, n_eff
                 top.evidence = ev
                 break
         joint.drop_the_rest()
+    elif ahead is not None:
+        ahead.cancel()  # (a running one is ended with the pool)
     if top.evidence.holds:
         top.significant = True
     else:
         top.why_not = f"not named: {top.evidence.reason}"
+
+
+def _ahead_of_the_rescue(pool, model_name, top, others, vehicle, stretches, n_eff, floor):
+    """The rescue's first step (the partners ranked, the joint fit with the likeliest),
+    started in a worker beside the evidence check when the rescue is likely: the named effect
+    leaves the data short of the noise floor by what a second effect could still be named for
+    (MIN_GAIN). Where one effect is missing, the named one reaches the floor and nothing is
+    started. A guess about timing only: whether the rescue runs is the check's answer.
+    A Future of (partner effects in order, the first joint fit), or None."""
+    if pool is None or not others or floor is None or n_eff is None:
+        return None
+    short = [o for o in OUTS if np.isfinite(floor[o]) and floor[o] - top.result.fit[o] >= MIN_GAIN]
+    if not short or not all(_in_workers(f"{model_name}+{top.effect}+{o.effect}") for o in others):
+        return None
+    # the others travel light: their effects and parameters (the joint fits' starts), not their fits
+    light = [Candidate(o.effect) for o in others]
+    return pool.submit(_rescue_start, (model_name, top, light, _alone(others), vehicle, stretches, n_eff))
+
+
+def _rescue_start(args):
+    model_name, top, others, alone, vehicle, stretches, n_eff = args
+    ranked = _rank_partners(model_name, top, others, vehicle, stretches, n_eff)
+    (job,) = _joint_jobs(model_name, top, ranked[:1], alone, vehicle, stretches)
+    return [o.effect for o in ranked], _fit_joint(job)
 
 
 def _rank_partners(model_name, top, others, vehicle, stretches, n_eff) -> list:
@@ -431,6 +530,17 @@ def _rank_partners(model_name, top, others, vehicle, stretches, n_eff) -> list:
     return sorted(others, key=lambda o: -lr[o.effect])
 
 
+def _alone(others) -> dict:
+    """Effect -> the parameters of its fit alone (none for one the screen passed over)."""
+    return {o.effect: o.result.all_params() if o.result is not None else {} for o in others}
+
+
+def _joint_jobs(model_name, top, partners, alone: dict, vehicle, stretches) -> list:
+    """The joint fits of ``top`` with each partner, started where each was fitted alone."""
+    return [(f"{model_name}+{top.effect}+{o.effect}", vehicle, stretches, dict(alone[o.effect], **top.result.all_params()))
+            for o in partners]
+
+
 def _fit_joint(args):
     name, vehicle, stretches, init = args
     return fit((), vehicle, name, "time", stretches=stretches, init=init, multistart=False)
@@ -442,11 +552,14 @@ class _Ahead:
     ``window``: at most that many jobs, from the one being read on, are started (for jobs read in
     order that may not all be needed: a worker busy with one that is not holds up what follows)."""
 
-    def __init__(self, pool, fn, jobs, order=None, window=None):
+    def __init__(self, pool, fn, jobs, order=None, window=None, known=None):
         self.pool, self.fn, self.jobs = pool, fn, jobs
         self.order = list(range(len(jobs)) if order is None else order)
         self.window = len(jobs) if window is None else window
         self.futures = [None] * len(jobs)
+        for i, result in (known or {}).items():  # done already, elsewhere
+            self.futures[i] = Future()
+            self.futures[i].set_result(result)
         self._submit_up_to(self.window)
 
     def _submit_up_to(self, n):

@@ -175,9 +175,15 @@ def test_two_missing_effects_in_one_step_name_the_first_and_fit_each_model_per_s
     monkeypatch.setattr(evidence, "fit_groups", lambda name, *a, **k: fitted.append(name) or fit_groups(name, *a, **k))
     monkeypatch.setattr(noise_floor, "_floor_errors", lambda *a: floors.append(1) or floor_errors(*a))
     runs = load_runs(random_steer_pair(simdir, ("actuator_lag", "accel_offset")), rc_vehicle)
+    import stid.diagnose as diagnosis
+
+    started = []  # the rescue's start, ahead in a worker (the lag alone stays short of the floor)
+    ahead = diagnosis._ahead_of_the_rescue
+    monkeypatch.setattr(diagnosis, "_ahead_of_the_rescue", lambda *a: started.append(ahead(*a)) or started[-1])
     (d,) = diagnose(runs, rc_vehicle, "bicycle")
     assert d.best is not None and d.best.effect == "actuator_lag"
     assert "holds once accel_offset is fitted with it" in d.best.evidence.reason, d.best.evidence.reason
+    assert [f is not None for f in started] == [workers.WORKERS > 1]
     assert min(d.unexplained.gap.values()) > 1 and d.unexplained.by_speed
     assert sorted(fitted) == sorted(set(fitted)) and "bicycle+actuator_lag" in fitted, fitted
     # the noise floor's errors, which unexplained compares the residual with band by band, are
@@ -296,6 +302,53 @@ def test_the_second_effect_is_tried_first_once_the_first_is_added(rc_vehicle):
     ranked = _rank_partners("bicycle", top, others, rc_vehicle, stretches, ra.n / max(ra.tau_int.values()))
     assert [c.effect for c in ranked][0] == "accel_offset", [c.effect for c in ranked]
     assert sorted(c.effect for c in ranked) == sorted(c.effect for c in others)
+
+
+def test_the_rescue_started_ahead_is_the_rescue_done_in_order(rc_vehicle):
+    """The rescue's first step may run in a worker beside the evidence check
+    (_ahead_of_the_rescue): the partners it ranks and the joint fit it makes must be the ones
+    the rescue makes itself (only the others' effects and parameters travel to the worker)."""
+    from stid.analysis.residuals import analyse
+    from stid.diagnose import Candidate, _alone, _fit_joint, _joint_jobs, _rank_partners, _rescue_start
+    from stid.fit.fitting import fit
+
+    stretches = _servo_lag_from_physics(x_acc=0.08)
+    lag = fit((), rc_vehicle, "bicycle+actuator_lag", "time", stretches=stretches)
+    n_eff = (lambda ra: ra.n / max(ra.tau_int.values()))(analyse(lag.predictions))
+    top = Candidate("actuator_lag", result=lag)
+    delay = fit((), rc_vehicle, "bicycle+sensor_delay", "time", stretches=stretches)
+    others = [Candidate("sensor_delay", result=delay), Candidate("accel_offset", start={"x_acc": 0.3})]
+    order, first = _rescue_start(("bicycle", top, [Candidate(o.effect) for o in others], _alone(others),
+                                  rc_vehicle, stretches, n_eff))
+    ranked = _rank_partners("bicycle", top, others, rc_vehicle, stretches, n_eff)
+    assert order == [o.effect for o in ranked] == ["accel_offset", "sensor_delay"]
+    (job,) = _joint_jobs("bicycle", top, ranked[:1], _alone(others), rc_vehicle, stretches)
+    assert job[3]["tau_steer"] == lag.value("tau_steer") and "x_acc" not in job[3]  # not the screen's start
+    here = _fit_joint(job)
+    assert first.names == here.names and list(first.values) == list(here.values)
+
+
+def test_the_screen_shared_between_workers_steps_as_one_process_does(rc_vehicle):
+    """The screen's linearised steps are shared between the workers and this process: each
+    candidate's step must be the one a single process computes, number for number."""
+    from stid.analysis.residuals import analyse
+    from stid.diagnose import Candidate, _shares, linearised_steps, worker_pool
+    from stid.fit.fitting import fit
+
+    # the costliest first, each to the share with least so far; each share in the items' order
+    assert _shares(list("abcde"), 2, cost=lambda c: {"a": 3}.get(c, 1)) == [["a", "e"], ["b", "c", "d"]]
+    assert _shares(["a"], 2, cost=len) == [["a"]]
+    stretches = _servo_lag_from_physics()
+    base = fit((), rc_vehicle, "bicycle", "time", stretches=stretches)
+    n_eff = (lambda ra: ra.n / max(ra.tau_int.values()))(analyse(base.predictions))
+    names = ["actuator_lag", "sensor_delay", "locked_diff", "sensor_bias", "accel_offset"]
+    alone = [Candidate(n) for n in names]
+    linearised_steps("bicycle", alone, rc_vehicle, stretches, base, n_eff, 0.01 / 5)
+    with worker_pool() as pool:
+        shared = [Candidate(n) for n in names]
+        linearised_steps("bicycle", shared, rc_vehicle, stretches, base, n_eff, 0.01 / 5, pool)
+    for a, b in zip(alone, shared):
+        assert (a.lr, a.p_value, a.gain, a.start) == (b.lr, b.p_value, b.gain, b.start), a.effect
 
 
 def test_jobs_read_in_order_are_started_one_window_ahead():
