@@ -50,21 +50,27 @@ class LogData:
         if not self.damage and self.data_crc_ok is not False and not self.bad_frames and not self.missing_frames:
             return None
         parts = []
-        if self.damage:
-            lost = sum(d.length for d in self.damage)
+        took = [d for d in self.damage if d.took_samples is not False]
+        spared = [d for d in self.damage if d.took_samples is False]
+        if took:
+            lost = sum(d.length for d in took)
             t0 = self.samples["t_host_ns"][0] if len(self.samples) else None
             where = []
-            for d in self.damage[:3]:
+            for d in took[:3]:
                 if t0 is not None and d.after_ns is not None and d.before_ns is not None:
                     where.append(f"{(d.after_ns - t0) / 1e9:.1f}-{(d.before_ns - t0) / 1e9:.1f} s")
                 elif d.before_ns is None:
                     where.append(f"the end (from byte {d.offset})")
                 else:
                     where.append(f"byte {d.offset}")
-            more = f" and {len(self.damage) - 3} more" if len(self.damage) > 3 else ""
-            parts.append(f"{len(self.damage)} damaged stretch(es), {lost} bytes, failed their checks and "
-                         f"were skipped (at {', '.join(where)}{more}; {self.damage[0].reason}); the samples "
+            more = f" and {len(took) - 3} more" if len(took) > 3 else ""
+            parts.append(f"{len(took)} damaged stretch(es), {lost} bytes, failed their checks and "
+                         f"were skipped (at {', '.join(where)}{more}; {took[0].reason}); the samples "
                          "there are missing, never guessed")
+        if spared:
+            parts.append(f"{len(spared)} damaged stretch(es), {sum(d.length for d in spared)} bytes, failed their "
+                         f"checks and were skipped ({spared[0].reason}); they held no samples (other channels, "
+                         "such as the per-sample view for Foxglove): every sample is intact")
         if self.data_crc_ok is False and not self.damage:
             parts.append("a record outside the data chunks is damaged (the data section CRC does not match): "
                          "the samples are intact, metadata may not be")
@@ -151,7 +157,7 @@ def read_log(path) -> LogData:
     for rec in sc.metadata:
         data.metadata[rec.name] = {k: _maybe_json(v) for k, v in rec.metadata.items()}
     data.damage.extend(_repaired_damage(data.metadata.get(REPAIR_METADATA)))
-    _unexplained_gaps(data, seqs, blob_ns)
+    _match_gaps(data, seqs, blob_ns)
     frames = FrameTable.from_messages(blobs, blob_ns, v2)
     if not data.hellos:
         # the /stid/hello messages were in damaged chunks: the HELLO frames are in /stid/frames too
@@ -191,20 +197,30 @@ def _repaired_damage(meta) -> list:
     return out
 
 
-def _unexplained_gaps(data: LogData, seqs: list, times: list) -> None:
-    """The writer numbers /stid/frames messages 1, 2, 3, ...: a message missing where no
-    damage was found means something was skipped unnoticed. Say so rather than trust it."""
+def _match_gaps(data: LogData, seqs: list, times: list) -> None:
+    """The writer numbers /stid/frames messages 1, 2, 3, ...: a gap in the numbering is the
+    frames a damaged stretch took. That places the stretch exactly, between the intact frame
+    messages either side, and a damaged stretch with no gap took no frames (its records held
+    other channels: each second's per-sample view, for instance). A gap where no damage was
+    found means something was skipped unnoticed: say so rather than trust it."""
     if len(seqs) < 2:
         return
     s = np.asarray(seqs, dtype=np.int64)
     t = np.asarray(times, dtype=np.int64)
+    for d in data.damage:  # damaged records (found here, or left out by a repair) took none unless a gap says so
+        if d.length and d.after_ns is not None and d.before_ns is not None:  # (at either end a loss shows no gap)
+            d.took_samples = False
     gap = np.flatnonzero(np.diff(s) != 1)
-    explained = [(d.after_ns, d.before_ns) for d in data.damage]
+    explained = [(d, d.after_ns, d.before_ns) for d in data.damage]
     for g in gap:
         a, b = int(t[g]), int(t[g + 1])
-        if not any((lo is None or lo <= b) and (hi is None or hi >= a) for lo, hi in explained):
+        hits = [d for d, lo, hi in explained if (lo is None or lo <= b) and (hi is None or hi >= a)]
+        if not hits:
             data.damage.append(Damage(0, 0, "frame messages missing (their numbering has a gap) where no "
                                             "damaged record was found", a, b))
+        for d in hits:
+            if d.length:  # a damaged record: it held these frames
+                d.took_samples, d.after_ns, d.before_ns = True, a, b
 
 
 def _v2_tables(buf: bytes, sizes: list[int], times: list[int]):

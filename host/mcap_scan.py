@@ -62,6 +62,7 @@ class Damage:
     reason: str
     after_ns: int | None = None  # log time of the last intact message before it
     before_ns: int | None = None  # ... and of the first after it
+    took_samples: bool | None = None  # frames lost with it (host.mcap_read; None: cannot tell)
 
     def as_dict(self) -> dict:
         return {"offset": self.offset, "length": self.length, "reason": self.reason,

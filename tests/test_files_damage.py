@@ -80,9 +80,12 @@ def circle_stream(seconds: float, hello_every_s: float | None = 1.0, uid="e66038
     return bytes(out)
 
 
-def record(stream: bytes, path, chunk_size: int = 256 * 1024, read_size: int = 300, supplied=None):
+def record(stream: bytes, path, chunk_size: int = 256 * 1024, read_size: int = 300, supplied=None,
+           flush_s: float | None = None):
     """Through the logger's recorder; each read arrives 2 ms (USB latency) after the MCU
-    time of the last frame it completes, as on a real port."""
+    time of the last frame it completes, as on a real port. ``flush_s``: flush every so many
+    seconds of the stream, as stid-log does every second (the per-sample view's chunks then
+    sit between the frames' chunks, not after them)."""
     log = McapLog(path, fsync=False, chunk_size=chunk_size)
     rec = Recorder(log)
     rec.event("connect", T0_NS, "test")
@@ -97,11 +100,15 @@ def record(stream: bytes, path, chunk_size: int = 256 * 1024, read_size: int = 3
         ends.append(pos)
         times.append(t_us)
     ends = np.asarray(ends)
+    flushed_us = times[0] if times else 0
     for i in range(0, len(stream), read_size):
         chunk = stream[i:i + read_size]
         k = np.searchsorted(ends, i + len(chunk), side="right") - 1
         t_us = times[k] if k >= 0 else 0
         rec.feed(chunk, T0_NS + t_us * 1000 + 2_000_000)
+        if flush_s is not None and t_us >= flushed_us + flush_s * 1e6:
+            log.flush()
+            flushed_us = t_us
     if supplied is not None:
         rec.supply_hello(*supplied)
     stats = rec.finish(T0_NS + 10**10)
@@ -255,6 +262,12 @@ def test_one_damaged_chunk_is_reported_with_its_time(small_log, tmp_path):
     assert len(log.damage) == 1 and not log.truncated
     d = log.damage[0]
     assert d.after_ns is not None and d.before_ns is not None and d.after_ns <= d.before_ns
+    # its place holds the samples it took (chunks of other channels interleave with the samples'
+    # by time: the damaged chunk's neighbours in the file do not bound it)
+    clean_t = read_log(small_log).samples["t_host_ns"]
+    lost = np.setdiff1d(clean_t, log.samples["t_host_ns"])
+    assert len(lost) and d.after_ns <= lost.min() and lost.max() <= d.before_ns, \
+        (d.after_ns - lost.min(), lost.max() - d.before_ns)
     note = log.damage_note()
     assert "skipped" in note and "bytes" in note
     # the official reader with validate_crcs agrees that the file is damaged
@@ -264,6 +277,45 @@ def test_one_damaged_chunk_is_reported_with_its_time(small_log, tmp_path):
         with pytest.raises(Exception):
             for _ in make_reader(f, validate_crcs=True).iter_messages():
                 pass
+
+
+def test_damage_is_placed_where_its_samples_were_and_damage_to_other_channels_loses_none(tmp_path):
+    """A log as stid-log writes it: flushed every second, so each second's per-sample view
+    (/stid/samples, for Foxglove) sits in a chunk of its own between the frames' chunks. The
+    samples stid reads come from the frames. Damage to a frames chunk is placed in time where
+    the samples it took were (its neighbours in the file hold the view of the same seconds, and
+    do not bound it); damage to a view chunk takes no sample, and the note must not say it did."""
+    from mcap.reader import make_reader
+
+    clean_path = tmp_path / "run.mcap"
+    record(circle_stream(6.0), clean_path, flush_s=1.0)
+    clean = clean_path.read_bytes()
+    clean_t = read_log(clean_path).samples["t_host_ns"]
+    with open(clean_path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    topic = {c.id: c.topic for c in summary.channels.values()}
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    frames = [c for c in chunks if "/stid/frames" in {topic[k] for k in c.message_index_offsets}]
+    view = [c for c in chunks if {topic[k] for k in c.message_index_offsets} == {"/stid/samples"}]
+    assert len(frames) > 4 and len(view) > 2
+    path = tmp_path / "damaged.mcap"
+
+    def damaged(c):
+        buf = bytearray(clean)
+        buf[c.chunk_start_offset + 60] ^= 0x10  # inside its compressed data
+        path.write_bytes(bytes(buf))
+        return read_log(path)
+
+    log = damaged(frames[len(frames) // 2])
+    (d,) = log.damage
+    lost = np.setdiff1d(clean_t, log.samples["t_host_ns"])
+    assert len(lost) and d.after_ns <= lost.min() and lost.max() <= d.before_ns, \
+        (d.after_ns - lost.min(), lost.max() - d.before_ns)
+    assert "samples there are missing" in log.damage_note()
+    log = damaged(view[len(view) // 2])
+    assert len(log.damage) == 1 and np.array_equal(log.samples["t_host_ns"], clean_t)
+    note = log.damage_note()
+    assert "missing" not in note and "every sample is intact" in note, note
 
 
 def _stid(*args):
