@@ -15,13 +15,12 @@ widths give the centre pulse and the pulse change per radian.
 from __future__ import annotations
 
 import math
-import re
 import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
-import tomli_w
+import tomlkit
 
 from host import units
 from host.errors import HostError
@@ -117,12 +116,15 @@ def steering_from_circles(paths, vehicle: Vehicle) -> dict:
 
 
 def _replace_table(text: str, name: str, values: dict) -> str:
-    """Replace (or append) one [table] of a TOML text, keeping everything else."""
-    body = tomli_w.dumps({name: {k: v for k, v in values.items() if not k.startswith("_")}})
-    pat = re.compile(rf"^\[{re.escape(name)}\][^\[]*", re.M)
-    if pat.search(text):
-        return pat.sub(body.rstrip() + "\n\n", text, count=1)
-    return text.rstrip() + "\n\n" + body
+    """Replace (or append) one [table] of a TOML text, keeping everything else (comments,
+    layout, the other tables)."""
+    doc = tomlkit.parse(text)
+    if name not in doc:
+        doc[name] = tomlkit.table()
+    for k, v in values.items():  # in place: the user's comments in the table stay too
+        if not k.startswith("_"):
+            doc[name][k] = [float(x) for x in v] if isinstance(v, (list, tuple, np.ndarray)) else v
+    return tomlkit.dumps(doc)
 
 
 def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: str | None = None) -> int:

@@ -30,6 +30,18 @@ def test_standstill_finds_the_gyro_zero_and_zeroes_the_accelerometer(tmp_path, b
     veh = load_vehicle(v)
     assert veh.sensors["gyro_zero_v"] == pytest.approx(1.68, abs=1e-3)
     assert (tmp_path / "car.toml.bak").exists() and "# The reference 1:8" in v.read_text()  # comments kept
+    # calibrating again (routine) rewrites the table the first calibration wrote, multi-line arrays
+    # and all: a table cut out by hand left the old accel_offset behind and broke the file
+    with open(v, "a") as f:
+        f.write("# my own note at the end\n")
+    first = load_vehicle(v).sensors
+    r = subprocess.run([tool("stid"), "calibrate", str(tmp_path / "still.mcap"), "--vehicle", str(v)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    again = load_vehicle(v)
+    assert again.sensors.keys() == first.keys() and len(again.sensors["accel_offset"]) == 3
+    assert again.sensors["gyro_zero_v"] == pytest.approx(first["gyro_zero_v"], abs=1e-6)
+    assert again.mass == veh.mass and "# my own note at the end" in v.read_text()
     run = load_file(tmp_path / "still.mcap", veh)[0]
     assert abs(np.mean(run.ay)) < 0.02 and abs(np.mean(run.ax)) < 0.02
     if board == "esp32":
