@@ -147,14 +147,21 @@ def _floor_line(res, floor, se, args) -> str:
     return text
 
 
-def _vehicle_and_runs(args):
-    """The vehicle file and the runs of a command, with the loaders' warnings printed."""
+def _vehicle_and_runs(args, chain_warning: bool = False):
+    """The vehicle file and the runs of a command, with the loaders' warnings printed.
+    ``chain_warning``: also the warning that the runs declare no sensor chain (fit and report
+    carry it in their results; a command that shows no single fit must say it here, or a
+    sensor filter it leaves out reads as a servo lag without a word)."""
+    from stid import sensor_chain
     from stid.load import load_runs
     from stid.vehicle_file import load_vehicle
 
     vehicle = load_vehicle(args.vehicle)
     runs = load_runs(args.runs, vehicle)
     _print_load_warnings(runs)
+    if chain_warning:
+        for w in sensor_chain.undeclared_warnings(runs, vehicle):
+            print(f"warning: {w}", file=sys.stderr)
     return vehicle, runs
 
 
@@ -171,7 +178,7 @@ def _cmd_diagnose(args) -> int:
     from stid.present import diagnosis_text
     from stid.progress import Progress
 
-    vehicle, runs = _vehicle_and_runs(args)
+    vehicle, runs = _vehicle_and_runs(args, chain_warning=True)
     with Progress("diagnosing") as prog:
         rounds = diagnose(runs, vehicle, args.model, peel=args.peel, progress=prog)
     if args.json:
@@ -190,7 +197,7 @@ def _cmd_compare(args) -> int:
     from stid.present import comparison_text
     from stid.progress import Progress
 
-    vehicle, runs = _vehicle_and_runs(args)
+    vehicle, runs = _vehicle_and_runs(args, chain_warning=True)
     held = _validation_runs(args, vehicle)
     with Progress("comparing") as prog:
         entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog,
