@@ -28,7 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--speed-profile", default="constant", choices=manoeuvres.SPEED_PROFILES,
                     help="constant: hold --speed; track: accelerate and brake every 2-5 s within "
                          "+-(--speed-swing) of --speed, as on a track")
-    ap.add_argument("--speed-swing", type=float, default=0.25, help="fraction, for --speed-profile track")
+    ap.add_argument("--speed-swing", type=float, help="fraction, for --speed-profile track (default 0.25)")
     ap.add_argument("--steer-amp", type=float, default=3.0, help="steer amplitude (rms for random steer), degrees")
     ap.add_argument("--bandwidth", type=float, default=4.0, help="Hz, random steer / chirp")
     ap.add_argument("--still", type=float, default=2.0, help="seconds standing still at the start")
@@ -54,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     o = ap.add_argument_group("faster than real time")
     o.add_argument("--fast", action="store_true", help="record straight to -o instead of serving a port")
     o.add_argument("-o", "--output", help="RUN.mcap for --fast")
+    o.add_argument("--overwrite", action="store_true", help="replace -o, --csv, --truth files that exist")
     o.add_argument("--csv", help="also write the CSV import contract here (--fast)")
     o.add_argument("--truth", help="write the truth (parameters, effects) as JSON here (for tests)")
     return ap
@@ -66,10 +67,7 @@ def config_from_args(args):
     unknown = set(effects) - set(vehicle.EFFECT_NAMES)
     if unknown:
         raise ValueError(f"unknown effect(s) {', '.join(sorted(unknown))}; known: {', '.join(vehicle.EFFECT_NAMES)}")
-    if args.duration <= 0:
-        raise ValueError("--duration must be positive")
-    if args.wheel_ppr < 1:
-        raise ValueError("--wheel-ppr must be at least 1")
+    _check_options(args)
     stalls = []
     for s in args.stall:
         try:
@@ -79,7 +77,8 @@ def config_from_args(args):
         stalls.append((at, dur))
     plan = manoeuvres.Plan(name=args.manoeuvre, duration=args.duration, speed=args.speed,
                            steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still,
-                           speed_profile=args.speed_profile, speed_swing=args.speed_swing)
+                           speed_profile=args.speed_profile,
+                           speed_swing=0.25 if args.speed_swing is None else args.speed_swing)
     _check_outputs(args)
     from hil_sim.effect_file import load_effect_file
 
@@ -89,6 +88,48 @@ def config_from_args(args):
                      board=args.board, rate_hz=args.rate, batch=args.batch, start_ticks=args.start_ticks,
                      stalls=tuple(stalls),
                      wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)
+
+
+MAX_SPEED = 30.0  # m/s: the fastest 1:8 cars; the single track is not for more
+MAX_STEER_DEG = 30.0  # an RC car's steering lock
+
+
+def _check_options(args) -> None:
+    """Values the simulated car, its link or its firmware cannot take, refused before the run.
+    The firmware's limits are its own (firmware/micropython/app.py): on the board it would
+    refuse them only once the simulation had started (tests/test_sim_stream.py checks that
+    the two agree)."""
+    from host import protocol
+
+    def need(ok, text):
+        if not ok:
+            raise ValueError(text)
+
+    need(args.duration > 0, "--duration must be positive (seconds)")
+    need(args.still >= 0, "--still must be 0 or more seconds")
+    need(args.manoeuvre == "standstill" or 1.0 <= args.speed <= MAX_SPEED,
+         f"--speed {args.speed:g}: a driving manoeuvre needs 1 to {MAX_SPEED:g} m/s (standing still: "
+         "--manoeuvre standstill)")
+    need(0 < args.steer_amp <= MAX_STEER_DEG, f"--steer-amp {args.steer_amp:g}: give 0 to {MAX_STEER_DEG:g} degrees")
+    need(10 <= args.rate <= 5000 and 1_000_000 % args.rate == 0,
+         f"--rate {args.rate}: the firmware samples at 10 to 5000 Hz, a whole number of microseconds apart "
+         "(e.g. 200, 500, 1000)")
+    need(0 < args.bandwidth < args.rate / 2, f"--bandwidth {args.bandwidth:g}: give a positive frequency below "
+         f"half the sample rate ({args.rate / 2:g} Hz)")
+    if args.speed_swing is not None:
+        need(args.speed_profile == "track", "--speed-swing is for --speed-profile track")
+        need(0 <= args.speed_swing < 1, "--speed-swing is a fraction of the speed: 0 to below 1")
+    need(args.wheel_ppr >= 1, "--wheel-ppr must be at least 1")
+    for flag, rate in (("--ber", args.ber), ("--drop-rate", args.drop_rate), ("--insert-rate", args.insert_rate)):
+        need(0 <= rate < 1, f"{flag} {rate:g}: a probability per bit or byte, 0 to below 1")
+    most = protocol.max_batch(protocol.VERSION, protocol.SAMPLES4 if args.wheel_speeds else protocol.SAMPLES)
+    need(1 <= args.batch <= most, f"--batch {args.batch}: the firmware sends 1 to {most} samples per frame")
+    if args.fast:
+        for flag, value in (("--disconnect-at", args.disconnect_at), ("--link", args.link)):
+            need(value is None, f"{flag} is for the served port; --fast records straight to -o")
+    else:
+        for flag, value in (("-o", args.output), ("--csv", args.csv)):
+            need(value is None, f"{flag} is for --fast; without it stid-sim serves a port for stid-log to record")
 
 
 def _check_outputs(args) -> None:
@@ -106,6 +147,8 @@ def _check_outputs(args) -> None:
         where = Path(path).parent
         if Path(path).is_dir():
             raise ValueError(f"{flag} {path} is a directory: give a file path")
+        if flag != "--link" and Path(path).is_file() and not args.overwrite:  # a run is never replaced unasked
+            raise ValueError(f"{flag} {path} exists: give another path, or --overwrite to replace it")
         if not where.is_dir():
             raise ValueError(f"{flag} {path}: the directory {where} does not exist; create it or give another path")
         if not os.access(where, os.W_OK):

@@ -84,6 +84,7 @@ def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: 
         drain.join()
         stats = rs.finish()
     if proc.returncode != 0:
+        Path(mcap_path).unlink(missing_ok=True)  # what it holds is not a run
         raise RuntimeError("firmware failed on the simulated board:\n" + err.decode(errors="replace"))
     if csv_path:
         write_csv(run, bytes(keep), csv_path)

@@ -219,6 +219,76 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, ar
     assert len(r.stderr.strip().splitlines()) == 1 and not list(tmp_path.iterdir()), r.stderr
 
 
+@pytest.mark.parametrize("args, says", [
+    (["--rate", "7"], "--rate 7: the firmware samples at 10 to 5000 Hz"),
+    (["--rate", "0"], "--rate 0:"),
+    (["--batch", "1000"], "--batch 1000: the firmware sends 1 to 38 samples per frame"),
+    (["--batch", "30", "--wheel-speeds"], "--batch 30: the firmware sends 1 to 22 samples per frame"),
+    (["--speed", "-5"], "--speed -5: a driving manoeuvre needs 1 to 30 m/s"),
+    (["--steer-amp", "90"], "--steer-amp 90: give 0 to 30 degrees"),
+    (["--ber", "2"], "--ber 2: a probability"),
+    (["--bandwidth", "0"], "--bandwidth 0: give a positive frequency"),
+    (["--still", "-1"], "--still must be 0 or more"),
+    (["--speed-swing", "0.3"], "--speed-swing is for --speed-profile track"),
+    (["--disconnect-at", "2"], "--disconnect-at is for the served port"),
+])
+def test_a_value_the_car_or_its_firmware_cannot_take_is_refused_before_the_run(tmp_path, args, says):
+    """They were accepted (a car at -5 m/s), a library's words (p < 0, p > 1 or p is NaN), or a
+    traceback once the firmware refused them on the simulated board, leaving a partial .mcap."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "hil_sim.cli", "--fast", "--duration", "1", *args,
+                        "-o", str(tmp_path / "x.mcap")], capture_output=True, text=True)
+    assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not list(tmp_path.iterdir()), r.stderr
+
+
+@pytest.mark.parametrize("rate, batch, wheels, ok", [(7, 10, None, False), (5000, 10, None, True),
+                                                     (500, 39, None, False), (500, 38, None, True),
+                                                     (500, 23, 4, False), (500, 22, 4, True)])
+def test_stid_sims_limits_are_the_firmwares(tmp_path, rate, batch, wheels, ok):
+    """stid-sim refuses what the firmware would (the firmware's own check, on the simulated
+    board, says it too: on stderr, not among its bytes, where it left a partial run)."""
+    from hil_sim.cli import _check_options, build_parser
+    from hil_sim.record import record
+    from hil_sim.run import SimConfig
+
+    args = build_parser().parse_args(["--fast", "--rate", str(rate), "--batch", str(batch), "--bandwidth", "2"]
+                                     + (["--wheel-speeds"] if wheels else []))
+    try:
+        _check_options(args)
+        refused = None
+    except ValueError as e:
+        refused = str(e)
+    cfg = SimConfig(plan=Plan(name="random_steer", duration=0.2, still=0.0, bandwidth=2.0), rate_hz=rate,
+                    batch=batch, wheel_speeds=bool(wheels))
+    out = tmp_path / "x.mcap"
+    if ok:
+        assert refused is None
+        record(cfg, out)
+    else:
+        assert refused is not None
+        with pytest.raises(RuntimeError, match="ValueError: (rate_hz|batch) must be"):
+            record(cfg, out)
+        assert not out.exists()
+
+
+def test_a_recorded_run_is_not_replaced_unasked(tmp_path):
+    """stid-sim --fast -o onto an existing run replaced it (978 kB -> 294 kB, exit 0)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "x.mcap"
+    out.write_bytes(b"a run")
+    cmd = [sys.executable, "-m", "hil_sim.cli", "--fast", "--duration", "1", "-o", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 2 and "exists: give another path, or --overwrite" in r.stderr, r.stderr
+    assert out.read_bytes() == b"a run"
+    r = subprocess.run(cmd + ["--overwrite"], capture_output=True, text=True)
+    assert r.returncode == 0 and out.stat().st_size > 1000, r.stderr
+
+
 def test_a_lossy_fast_run_says_what_the_link_lost(tmp_path):
     """--fast with link faults printed only the samples written, not what the faults took."""
     import subprocess
