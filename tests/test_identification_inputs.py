@@ -161,3 +161,16 @@ def test_steady_state_gain_matches_the_understeer_formula(rc_vehicle):
         H = m.freqresp(p, np.array([1e-4]), vx)
         assert abs(H[1, 0]) == pytest.approx(vx / (v.L + K * vx ** 2), rel=1e-6)
         assert abs(H[0, 0]) == pytest.approx(vx ** 2 / (v.L + K * vx ** 2), rel=1e-6)
+
+
+def test_the_fit_percent_of_an_output_that_does_not_vary_is_not_a_number():
+    """On a circle at constant steer the steady fit's steer is constant up to round-off: the fit
+    percent divided by that round-off and printed -7381009310664.4%."""
+    from stid.fit.result import FitResult, fit_percent
+
+    steer = np.full(50, 0.05) + 1e-18 * np.arange(50)  # constant but for round-off
+    assert np.isnan(fit_percent(steer, steer + 1e-4))
+    assert fit_percent(np.sin(np.arange(50.0)), np.sin(np.arange(50.0))) == 100.0
+    res = FitResult(model="bicycle", method="steady", names=["eta"], values=np.array([0.004]),
+                    cov=np.array([[1e-10]]), units={"eta": "rad/(m/s^2)"}, fit={"steer": fit_percent(steer, steer)})
+    assert "steer n/a (it does not vary)" in res.table() and res.to_json()["fit"] == {"steer": None}

@@ -14,9 +14,10 @@ OUTPUT_UNITS = {"ay": "m/s^2", "r": "rad/s"}
 
 
 def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
-    """MATLAB-style fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||)."""
+    """MATLAB-style fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||); nan for an output that does
+    not vary (a constant steer on a circle: its spread is round-off, and the ratio meaningless)."""
     den = np.linalg.norm(y - np.mean(y))
-    if den == 0:
+    if den <= 1e-9 * np.linalg.norm(y):
         return float("nan")
     return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den))
 
@@ -116,7 +117,7 @@ class FitResult:
         for name, (v, unit, why) in self.fixed.items():
             params[name] = {"value": float(v), "stderr": None, "unit": unit, "fixed": why}
         return {"model": self.model, "method": self.method, "params": params,
-                "fit": {k: round(float(v), 2) for k, v in self.fit.items()},
+                "fit": {k: round(float(v), 2) if np.isfinite(v) else None for k, v in self.fit.items()},
                 "correlation": {"params": list(self.names), "matrix": np.round(self.corr, 4).tolist()},
                 "aic": float(self.aic), "bic": float(self.bic), "n": int(self.n),
                 "interval": self.interval,
@@ -136,7 +137,8 @@ class FitResult:
             lines.append(f"  {name:<14}{_num(v):>13}{'fixed':>13}           {why}  {unit}")
         if self.fit:
             lines.append("")
-            lines.append("  fit: " + "   ".join(f"{k} {v:.1f}%" for k, v in self.fit.items())
+            lines.append("  fit: " + "   ".join(f"{k} {v:.1f}%" if np.isfinite(v) else f"{k} n/a (it does not vary)"
+                                               for k, v in self.fit.items())
                          + "   (100 (1 - |y - yhat| / |y - mean y|))")
         if self.k > 1:
             c = self.corr
