@@ -194,3 +194,24 @@ def test_greybox_needs_wheel_speeds(simdir, rc_vehicle):
 
     with pytest.raises(InputError, match="wheel speeds"):
         fit(load_runs(random_steer_pair(simdir)[:1], rc_vehicle), rc_vehicle, "greybox")
+
+
+def test_two_step_without_body_slip_gives_cf_from_eta_with_its_standard_error(passenger):
+    """Without beta the steady state gives only the understeer gradient, and Cf follows from it
+    and the dynamic fit's Cr. It was printed as 'fixed' with no uncertainty at all; its standard
+    error now comes from eta's and Cr's (delta method), and the truth lies within its 95%."""
+    import dataclasses
+    import re
+
+    car, veh, ss, rs = passenger
+    runs = [dataclasses.replace(r, beta=None) for r in ss + rs]
+    two = fit(runs, veh, "bicycle+tyre_relaxation", "two-step")  # the passenger car has relaxation
+    cf, _, why = two.fixed["Cf"]
+    se = float(re.search(r"std\. error ([0-9.e+-]+)", why).group(1))
+    eta = two.extra["eta"]
+    i = two.names.index("Cr")
+    lo, hi = two.ci95[i]
+    D = eta * veh.L / veh.mass + veh.a / two.values[i]
+    dcr = veh.b * veh.a / (D * two.values[i]) ** 2 * (hi - lo) / (2 * 1.959964)
+    assert dcr <= se <= 5 * dcr + 0.05 * cf, (se, dcr)  # Cr's share, and eta's on top
+    assert abs(cf - car.Cf) < 1.96 * se + 0.01 * car.Cf, (cf, se, car.Cf)

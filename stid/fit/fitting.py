@@ -128,7 +128,15 @@ def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-
     else:
         p_hat = dict(zip(res.names, res.values))
         p_hat.update(space.derived(p_hat))
-        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr")
+        # its standard error by the delta method, from eta's (the steady fit) and Cr's (the dynamic
+        # fit, as wide as its printed interval: model error and geometry included; the two fits'
+        # data differ, so their errors are taken as independent)
+        D = eta * v.L / v.mass + v.a / p_hat["Cr"]
+        lo, hi = res.ci95[res.names.index("Cr")]
+        var = ((v.b * v.L / (v.mass * D ** 2)) ** 2 * ss.stderr[0] ** 2
+               + (v.b * v.a / (D * p_hat["Cr"]) ** 2) ** 2 * ((hi - lo) / (2 * 1.959964)) ** 2)
+        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr "
+                                                 f"(std. error {np.sqrt(var):.4g})")
         res.extra["eta"] = ss.value("eta")
     res.extra["steady"] = ss
     for w in ss.warnings:
