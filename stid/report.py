@@ -99,8 +99,8 @@ def time_figure(chain, window_s=8.0):
     n = len(chain)
     fig, axes = plt.subplots(4, 1, figsize=(10, 8.5), sharex=True, gridspec_kw={"height_ratios": [2, 1, 2, 1]})
     p0 = chain[0][1].predictions[0]
-    t = p0.t - p0.t[0]
-    m = (t >= 2.0) & (t <= 2.0 + window_s)
+    t = p0.t  # the run's own time, as in the overview and the exported CSV (the stretch starts later)
+    m = (t >= t[0] + 2.0) & (t <= t[0] + 2.0 + window_s)
     for i, (lab, unit) in enumerate((("ay", "m/s^2"), ("r", "rad/s"))):
         ax, axr = axes[2 * i], axes[2 * i + 1]
         ax.plot(t[m], p0.y[m, i], color="k", lw=1.4, label="measured")
@@ -113,7 +113,7 @@ def time_figure(chain, window_s=8.0):
         axr.axhline(0, color="k", lw=0.5)
         for a_ in (ax, axr):
             a_.grid(alpha=0.3)
-    axes[-1].set_xlabel(f"time [s]  ({p0.name}, {p0.vx:.1f} m/s)")
+    axes[-1].set_xlabel(f"time in the run [s]  ({p0.name}, {p0.vx:.1f} m/s)")
     fig.suptitle("Measured and simulated with the measured steer, and what each model leaves (ISO 8855: left positive)")
     _legend_below(fig, axes, ncol=min(4, n + 1))
     fig.subplots_adjust(bottom=0.12)
@@ -125,13 +125,13 @@ def overview_figure(runs):
     fig, axes = plt.subplots(4, 1, figsize=(10, 6.5), sharex=True)
     for k, run in enumerate(runs):
         col = COLORS[(k + 1) % len(COLORS)]
-        t = run.t - run.t[0]
+        t = run.t  # the log's time (a run cut into pieces keeps it)
         for ax, y, lab in zip(axes, (run.vx, np.degrees(run.steer), run.ay, run.r),
                               ("vx [m/s]", "steer [deg]", "ay [m/s^2]", "r [rad/s]")):
             ax.plot(t, y, color=col, lw=0.7, label=run.name)
             ax.set_ylabel(lab)
             ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("time [s]")
+    axes[-1].set_xlabel("time in the run [s]")
     fig.suptitle("The logged runs (as loaded and calibrated, before any filtering)")
     _legend_below(fig, axes, ncol=2)
     fig.subplots_adjust(bottom=0.13)
