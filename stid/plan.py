@@ -234,11 +234,11 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
             if best is None or gain > best[0]:
                 best = (gain, label, extra, sd)
         gain, label, extra, sd = best
-        # information adds: seconds of that manoeuvre needed to reach the target
-        need = (1 / target ** 2 - 1 / rel ** 2) / max(gain, 1e-300)
-        extra = replace(extra, duration=float(np.ceil(need / 10) * 10))
-        out.append(f"{name} ±{100 * target:g}% needs {extra.label()} in addition "
-                   f"(now ±{100 * rel:.1f}%; best of: more time, another speed, wider bandwidth, more steer)")
+        extra, sd = _long_enough(model, params, manoeuvres, noise, name, extra, rel, target, gain)
+        reach = (f"then ±{100 * sd:.2g}%" if sd <= target else
+                 f"which still leaves ±{100 * sd:.2g}%: the target is beyond what this manoeuvre adds")
+        out.append(f"{name} ±{100 * target:g}% needs {extra.label()} in addition ({reach}; now ±{100 * rel:.2g}%; "
+                   "best of: more time, another speed, wider bandwidth, more steer)")
     names = base["names"]
     effects = {e.name for e in model.effects}
     if {"actuator_lag", "tyre_relaxation"} <= effects and len({m.speed for m in manoeuvres}) == 1:
@@ -246,6 +246,24 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
         out.append(f"servo lag and relaxation are {abs(base['corr'][i, j]):.2f} correlated at one speed: to "
                    "separate them add a second speed (relaxation lag scales with 1/speed, servo lag does not)")
     return out
+
+
+def _long_enough(model, params, manoeuvres, noise, name, extra, rel, target, gain, tries: int = 8):
+    """``extra`` lengthened (in 10 s steps) until the plan predicts ``target`` for ``name``, and
+    the sd it then predicts. The information a manoeuvre adds grows with its duration, but a
+    parameter correlated with others gains less than its share of it: the first guess (information
+    adds, at ``gain`` per second) fell short by up to a quarter, so each guess is checked and
+    scaled by the information still missing."""
+    need = (1 / target ** 2 - 1 / rel ** 2) / max(gain, 1e-300)
+    sd = rel
+    for _ in range(tries):
+        extra = replace(extra, duration=float(np.ceil(need / 10) * 10))
+        sd = predict(model, params, manoeuvres + [extra], noise)["sd"][name] / abs(params[name])
+        added = 1 / sd ** 2 - 1 / rel ** 2
+        if sd <= target or added <= 0:
+            break
+        need = extra.duration * (1 / target ** 2 - 1 / rel ** 2) / added
+    return extra, sd
 
 
 def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
