@@ -114,6 +114,8 @@ def write_table(rows, out: Path) -> None:
     import pandas as pd
 
     df = pd.DataFrame(rows)
+    if "warnings" in df:  # a count (a run that failed has none: empty, not 0.0 for every run)
+        df["warnings"] = df["warnings"].astype("Int64")
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".parquet":
         try:

@@ -225,7 +225,7 @@ def _cmd_plan(args) -> int:
     from stid.errors import InputError
     from stid.load import load_runs
     from stid.models.model import Model
-    from stid.plan import datasheet_noise, parse_manoeuvre, plan_report
+    from stid.plan import check_grip, datasheet_noise, parse_manoeuvre, plan_report
     from stid.vehicle_file import load_vehicle
 
     vehicle = load_vehicle(args.vehicle)
@@ -267,6 +267,8 @@ def _cmd_plan(args) -> int:
         if not 0 < targets[name.strip()] < 1:  # (nan fails this too)
             raise InputError(f"--target {t!r}: the target is a standard error in percent of the value, "
                              "above 0 and below 100, e.g. Iz=5%")
+    for m in manoeuvres:
+        check_grip(model, params, m)
     text, doc = plan_report(model, params, manoeuvres, noise, targets, source, params_source)
     print(_json(doc) if args.json else text)
     return 0

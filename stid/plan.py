@@ -108,6 +108,19 @@ def steer_dft(m: Manoeuvre, fs: float = ANALYSIS_FS):
     return f, np.sqrt(p * n * n) * m.amp, n
 
 
+MAX_AY_RMS = 9.81  # m/s^2: 1 g rms of lateral acceleration is beyond any tyre's grip
+
+
+def check_grip(model: Model, params: dict, m: Manoeuvre) -> None:
+    """A manoeuvre the car cannot drive: its steer at its speed asks for more lateral
+    acceleration than any tyre gives (the linear model would happily plan it)."""
+    ay = float(abs(model.freqresp(params, np.array([0.05]), m.speed)[0, 0])) * m.amp
+    if not ay <= MAX_AY_RMS:
+        raise InputError(f"manoeuvre {m.label()}: at {m.speed:g} m/s that steer asks for {ay / 9.81:.1f} g of lateral "
+                         "acceleration (rms), more than any tyre gives; drive slower or steer less (the linear "
+                         "model holds to about 0.4 g)")
+
+
 def datasheet_noise(fs: float = ANALYSIS_FS, sample_rate: float = 500.0, vehicle=None) -> dict:
     """One-sided noise PSD of ay and r from the datasheets: the sensors' noise densities
     through their output filters, plus 12-bit ADC quantisation at the firmware's rate."""
@@ -208,7 +221,8 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
     out = []
     for name, target in targets.items():
         if name not in base["sd"]:
-            raise InputError(f"--target {name}: the model {model.name} has no parameter {name}")
+            raise InputError(f"--target {name}: the model {model.name} has no parameter {name}; its parameters: "
+                             f"{', '.join(base['names'])}")
         if not np.isfinite(base["sd"][name]):
             out.append(f"{name}: no target can be planned for it (no sd predicted: see the note above)")
             continue
@@ -218,7 +232,7 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
             continue
         rel = base["sd"][name] / abs(params[name])
         if rel <= target:
-            out.append(f"{name}: ±{100 * rel:.2g}% predicted, within the ±{100 * target:g}% target")
+            out.append(f"{name}: sd {100 * rel:.2g}% predicted, within the {100 * target:g}% target")
             continue
         ref = manoeuvres[0]
         options = [
@@ -235,9 +249,9 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
                 best = (gain, label, extra, sd)
         gain, label, extra, sd = best
         extra, sd = _long_enough(model, params, manoeuvres, noise, name, extra, rel, target, gain)
-        reach = (f"then ±{100 * sd:.2g}%" if sd <= target else
-                 f"which still leaves ±{100 * sd:.2g}%: the target is beyond what this manoeuvre adds")
-        out.append(f"{name} ±{100 * target:g}% needs {extra.label()} in addition ({reach}; now ±{100 * rel:.2g}%; "
+        reach = (f"then sd {100 * sd:.2g}%" if sd <= target else
+                 f"which still leaves sd {100 * sd:.2g}%: the target is beyond what this manoeuvre adds")
+        out.append(f"{name} sd {100 * target:g}% needs {extra.label()} in addition ({reach}; now {100 * rel:.2g}%; "
                    "best of: more time, another speed, wider bandwidth, more steer)")
     names = base["names"]
     effects = {e.name for e in model.effects}

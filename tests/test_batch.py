@@ -38,6 +38,8 @@ def test_batch_on_local_processes(season, tmp_path):
     assert "MCAP" in df[df["error"] != ""]["error"].iloc[0]
     assert (tmp_path / "results.drift.png").exists()
     assert "4 of 5 runs fitted" in r.stderr
+    warned = pd.read_csv(out, dtype=str, keep_default_na=False)["warnings"]
+    assert all(w == "" or w.isdigit() for w in warned), list(warned)  # a count, not 0.0 (a failed run: empty)
 
 
 def test_batch_without_runs_fails_cleanly(tmp_path):

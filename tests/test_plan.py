@@ -65,7 +65,7 @@ def test_plan_cli_suggests_what_to_drive(tmp_path):
                         "--model", "bicycle+actuator_lag+tyre_relaxation", "--manoeuvre",
                         "speed=4,amp=0.3deg,bw=3,dur=20", "--target", "Iz=0.5%"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    assert "Iz ±0.5% needs random steer" in r.stdout
+    assert "Iz sd 0.5% needs random steer" in r.stdout
     assert "add a second speed" in r.stdout
     bad = subprocess.run([tool("stid"), "plan", "--vehicle", str(REPO / "docs" / "examples" / "rc8.toml"),
                           "--manoeuvre", "speed=fast"], capture_output=True, text=True)
@@ -78,6 +78,8 @@ def test_plan_cli_suggests_what_to_drive(tmp_path):
     (["--target", "Iz=nan%"], "above 0 and below 100"),  # was 'for nan s'
     (["--manoeuvre", "speed=4,bw=150"], "low-pass the data at 20 Hz"),  # was a scipy traceback
     (["--manoeuvre", "speed=4,amp=90deg"], "beyond the steering's travel"),
+    (["--manoeuvre", "speed=40,amp=2deg"], "asks for 10.8 g of lateral acceleration"),  # was planned
+    (["--target", "Foo=5%"], "has no parameter Foo; its parameters: Cf, Cr, Iz"),
 ])
 def test_plan_refuses_what_cannot_be_planned_in_one_line(args, says):
     base = ["--manoeuvre", "speed=4,amp=2deg,bw=4,dur=20"] if args[0] == "--target" else []
