@@ -131,7 +131,7 @@ def _floor_line(res, floor, se, args) -> str:
     if not all(math.isfinite(v) for v in floor.values()):
         from stid.present import floor_words
 
-        return "  " + floor_words(floor)
+        return "  " + floor_words(floor, se)
     short = {o: floor[o] - res.fit[o] for o in res.fit
              if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
     on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"

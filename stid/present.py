@@ -3,6 +3,8 @@ result objects; this only lays them out, for a person who reads it once)."""
 
 from __future__ import annotations
 
+import math
+
 import shlex
 import textwrap
 
@@ -38,11 +40,16 @@ def _command(runs, vehicle_path, *rest) -> str:
     return " ".join(shlex.quote(str(p)) for p in parts)
 
 
-def floor_words(floor: dict) -> str:
-    """The noise floor, or why there is none."""
+def floor_words(floor: dict, se: dict | None = None) -> str:
+    """The noise floor, or why there is none (``se``: its standard errors, when known)."""
     import math
 
     if not all(math.isfinite(v) for v in floor.values()):
+        wide = {o: s for o, s in (se or {}).items() if math.isfinite(s) and not math.isfinite(floor.get(o, 0.0))}
+        if wide:
+            return ("noise floor: not determined by this data (standard error "
+                    + ", ".join(f"{o} {s:.0f}" for o, s in wide.items()) + " points): it needs steering across "
+                    "frequencies, such as random steer, not only circles or steps")
         return ("noise floor: not estimated (the stretches are too short for its 1 s predictor in 5 folds; "
                 "log longer runs)")
     return ("noise floor " + ", ".join(f"{o} {v:.1f}%" for o, v in floor.items())
@@ -79,7 +86,7 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         head = "" if k == 0 else f"step {k + 1}: "
         n = len(d.base.predictions)
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
-                     f"{floor_words(d.floor)}   "
+                     f"{floor_words(d.floor, d.floor_se)}   "
                      f"[{n} stretch{'es' if n != 1 else ''} at {', '.join(f'{v:g}' for v in speeds)} m/s]")
         if any(c.skipped or c.result is not None for c in d.candidates):
             lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
@@ -151,8 +158,11 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
                      f"{e['bic']:12.0f}  {white:<15}  {indep}")
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {})
-    lines.append(f"{'noise floor':<{w}}{_pct(fl['ay']):>8}{_pct(fl['r']):>8}   (what a correct model reaches; "
-                 f"+-{se.get('ay', float('nan')):.2f} / {se.get('r', float('nan')):.2f})")
+    if all(math.isfinite(v) for v in fl.values()):
+        lines.append(f"{'noise floor':<{w}}{_pct(fl['ay']):>8}{_pct(fl['r']):>8}   (what a correct model reaches; "
+                     f"+-{se.get('ay', float('nan')):.2f} / {se.get('r', float('nan')):.2f})")
+    else:
+        lines.extend(_wrap(floor_words(fl, se), indent="  ", first=""))
     lines.extend(_wrap("(white: residual autocorrelation inside the 99% band; indep.: residual-steer "
                        "cross-correlation inside it. At the noise floor a residual may still be coloured: the "
                        "sensor noise is filtered too)", indent="", first=""))
@@ -183,6 +193,10 @@ def _verdict(entries, runs=None, vehicle_path=None) -> str:
     # one model has no rival to be best of: the verdict is its distance to the floor alone
     one = len(entries) == 1
     text = f"verdict: {best['model']}" + ("" if one else " is the best of these by BIC")
+    if not all(math.isfinite(v) for v in fl.values()):
+        if one:
+            return text + ": with no noise floor on this data, nothing says how close it comes to a correct model"
+        return text + " (with no noise floor on this data, nothing says how close it comes to a correct model)"
     if not gap:
         text += (" reaches" if one else " and reaches") + " the noise floor: nothing more this data can show"
     else:

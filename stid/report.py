@@ -82,9 +82,12 @@ def error_fall_figure(chain, floor):
         ax.plot(x, vals, "o-", color=COLORS[1], lw=2)
         for xi, v in zip(x, vals):
             ax.annotate(f"{v:.1f}%", (xi, v), textcoords="offset points", xytext=(0, 8), ha="center")
-        ax.axhline(floor[out], color="k", ls="--", lw=1, label=f"noise floor {floor[out]:.1f}%")
+        if np.isfinite(floor[out]):
+            ax.axhline(floor[out], color="k", ls="--", lw=1, label=f"noise floor {floor[out]:.1f}%")
+            ax.set_title(f"{title} (floor {floor[out]:.1f}%, dashed)")
+        else:  # (not determined by this data: see the diagnosis)
+            ax.set_title(f"{title} (no noise floor on this data)")
         ax.set_xticks(x, labels, rotation=15)
-        ax.set_title(f"{title} (floor {floor[out]:.1f}%, dashed)")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("fit [%]  100 (1 - |y - yhat| / |y - mean y|)")
     lo = max(min(min(min(res.fit.values()) for _, res in chain) - 5, 90), -50)

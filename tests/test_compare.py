@@ -91,3 +91,25 @@ def test_the_verdict_on_one_model_compares_it_with_the_floor_alone():
                                                               "more this data can show")
     two = _verdict([entry("bicycle", 60.0, 90.0, 0.0), entry("bicycle+actuator_lag", 98.9, 97.9, -10.0)])
     assert two.startswith("verdict: bicycle+actuator_lag is the best of these by BIC and reaches")
+
+
+def test_a_floor_the_data_do_not_determine_is_not_given_and_nothing_claims_to_reach_it():
+    """On a circle at constant steer the floor came out 68% +- 28 where the bicycle fits 99.5%, and
+    was printed as 'what a correct model reaches'; compare's verdict then said the model 'reaches
+    the noise floor'. A floor whose standard error exceeds UNDETERMINED_SE points is not given."""
+    import numpy as np
+
+    from stid.analysis.noise_floor import UNDETERMINED_SE, _floor_from
+    from stid.present import _verdict, floor_words
+
+    rng = np.random.default_rng(0)
+    y = rng.standard_normal(5000)
+    folds = np.repeat(np.arange(5), 1000)
+    steady = y * (0.01 + 0.6 * (folds == 2))  # one fold's error is 60% of the signal, the others 1%
+    floor, se = _floor_from(({"ay": [steady], "r": [0.01 * y]}, {"ay": [y], "r": [y]}, [folds]))
+    assert se["ay"] > UNDETERMINED_SE and np.isnan(floor["ay"]) and floor["r"] > 98
+    words = floor_words(floor, se)
+    assert words.startswith("noise floor: not determined by this data (standard error ay") and "nan" not in words
+    entry = {"model": "bicycle", "fit": {"ay": 99.5, "r": 99.0}, "bic": 0.0, "noise_floor": floor,
+             "noise_floor_stderr": se}
+    assert "reaches" not in _verdict([entry]) and "no noise floor on this data" in _verdict([entry])

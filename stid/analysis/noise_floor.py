@@ -240,6 +240,12 @@ def _percent(e: np.ndarray, y: np.ndarray) -> float:
     return float(100 * (1 - np.linalg.norm(e) / np.linalg.norm(y - y.mean())))
 
 
+# A floor whose standard error exceeds this many fit points says nothing about what a model
+# should reach: the data do not determine it (too little steering across frequencies for the
+# predictor). It is then not given (nan, as for stretches too short), with its standard error.
+UNDETERMINED_SE = 5.0
+
+
 def noise_floor_uncertainty(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5):
     """(floor, its standard error) per output, in fit points."""
     return _floor_from(floor_errors(stretches, memory_s, keep_from_s, with_folds=True))
@@ -256,6 +262,8 @@ def _floor_from(errors):
         floor[o] = _percent(e, y)
         jk = np.array([_percent(e[f != k], y[f != k]) for k in range(FOLDS)])
         se[o] = float(np.sqrt((FOLDS - 1) / FOLDS * np.sum((jk - jk.mean()) ** 2)))
+        if se[o] > UNDETERMINED_SE:  # (a circle at constant steer: 68% +- 28 where the bicycle fits 99.5%)
+            floor[o] = float("nan")
     return floor, se
 
 
