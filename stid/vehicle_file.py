@@ -1,7 +1,7 @@
 """The vehicle file (TOML): what the user measured, plus optional calibration.
 
-Required top-level keys: ``name``, ``mass`` [kg], ``a``, ``b`` [m, CG to front /
-rear axle]. Optional tables:
+Required top-level keys: ``mass`` [kg], ``a``, ``b`` [m, CG to front /
+rear axle]; ``name`` is optional (the file's name otherwise). Optional tables:
 
 ```toml
 [steering]            # servo pulse -> front road-wheel angle
