@@ -174,3 +174,18 @@ def test_the_fit_percent_of_an_output_that_does_not_vary_is_not_a_number():
     res = FitResult(model="bicycle", method="steady", names=["eta"], values=np.array([0.004]),
                     cov=np.array([[1e-10]]), units={"eta": "rad/(m/s^2)"}, fit={"steer": fit_percent(steer, steer)})
     assert "steer n/a (it does not vary)" in res.table() and res.to_json()["fit"] == {"steer": None}
+
+
+def test_an_interval_of_a_parameter_positive_by_nature_stays_positive():
+    """A steady circle gave Cr [-1693, 6595] N/rad and Iz [-0.141, 0.633] kg m^2: values no car
+    has. A parameter the solver fits in log space gets the same relative half-width there; where
+    the half-width is small against the value, the interval is the symmetric one."""
+    from stid.fit.result import FitResult
+
+    res = FitResult(model="bicycle", method="time", names=["Cr", "Iz", "x_acc"], values=np.array([2451.0, 0.25, 0.08]),
+                    cov=np.diag([2100.0, 1e-6, 0.1]) ** 2, units={}, n=10_000, positive=("Cr", "Iz"))
+    (cr_lo, cr_hi), (iz_lo, iz_hi), (x_lo, x_hi) = res.ci95
+    assert 0 < cr_lo < 2451.0 < cr_hi and np.sqrt(cr_lo * cr_hi) == pytest.approx(2451.0)
+    half = 1.96 * 1e-6
+    assert (iz_lo, iz_hi) == pytest.approx((0.25 - half, 0.25 + half), rel=1e-9)  # small: the same
+    assert x_lo < 0 < x_hi  # an offset may be negative: symmetric

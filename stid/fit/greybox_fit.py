@@ -178,7 +178,8 @@ def _result(prob: _Problem, space, res, p_hat, cov) -> FitResult:
     names = list(space.free)
     result = FitResult(model=model.name, method="time (nonlinear grey-box)", names=names,
                        values=np.array([p_hat[n] for n in names]), cov=cov,
-                       units={n: model.param(n).unit for n in names}, owners={n: "greybox" for n in names})
+                       units={n: model.param(n).unit for n in names}, owners={n: "greybox" for n in names},
+                       positive=tuple(n for n in names if getattr(model.param(n), "log", False)))
     yh = [prob.simulate(p_hat, i) for i in range(len(prob.pieces))]
     Y = prob.measured()
     YH = np.vstack([h[k] for h, k in zip(yh, prob.keeps)])

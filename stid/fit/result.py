@@ -53,6 +53,7 @@ class FitResult:
     interval: str = ""  # which kind of 95% interval ci95 is (noise only, or with model error)
     ci_dof: int | None = None  # degrees of freedom of the interval's t quantile (default n - k)
     ci_allowance: np.ndarray | None = None  # model-error allowance added to each half-width
+    positive: tuple = ()  # parameters positive by nature (a stiffness, an inertia, a lag): see ci95
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
 
@@ -68,7 +69,15 @@ class FitResult:
         half = q * self.stderr
         if self.ci_allowance is not None:
             half = half + self.ci_allowance
-        return np.column_stack([self.values - half, self.values + half])
+        lo, hi = self.values - half, self.values + half
+        # a parameter positive by nature gets the same relative half-width in log space (where the
+        # solver fits it): an interval [-1693, 6595] N/rad for a cornering stiffness holds values no
+        # car has. Where the half-width is small against the value the two are the same.
+        for i, n in enumerate(self.names):
+            if n in self.positive and self.values[i] > 0:
+                w = half[i] / self.values[i]
+                lo[i], hi[i] = self.values[i] * np.exp(-w), self.values[i] * np.exp(w)
+        return np.column_stack([lo, hi])
 
     @property
     def corr(self) -> np.ndarray:

@@ -80,6 +80,7 @@ def fit_steady(model, pts: SteadyPoints) -> FitResult:
     extra.update({"k_beta": kb, "beta0": b0})
     res = FitResult(model=model.name, method="steady", names=["Cf", "Cr"], values=np.array([Cf, Cr]), cov=cov,
                     units={"Cf": "N/rad", "Cr": "N/rad"}, owners={"Cf": "bicycle", "Cr": "bicycle"}, fit=fit,
+                    positive=("Cf", "Cr"),
                     n=2 * n, warnings=warnings, extra=extra)
     res.loglik = _loglik(e_d) + _loglik(e_b)
     return res

@@ -213,7 +213,8 @@ def make_result(model, method: str, space: ParamSpace, p_hat: dict, cov: np.ndar
     fixed = {n: (p_hat[n], model.param(n).unit, "held fixed") for n in space.fixed}
     result = FitResult(model=model.name, method=method, names=names, values=values, cov=cov,
                        units={n: model.param(n).unit for n in model.param_names},
-                       owners={n: model.owner(n) for n in model.param_names}, fixed=fixed, predictions=preds)
+                       owners={n: model.owner(n) for n in model.param_names}, fixed=fixed, predictions=preds,
+                       positive=tuple(n for n in names if model.param(n).log))
     fill_fit_stats(result, preds)
     return result
 
