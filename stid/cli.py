@@ -166,11 +166,35 @@ def _vehicle_and_runs(args, chain_warning: bool = False):
 
 
 def _print_load_warnings(runs) -> None:
+    """The loaders' warnings and notes, each said once per file: a run that gaps on the link
+    cut into pieces (name#2, #3, ...) shares most of them, and its losses add up."""
+    by_file = {}
     for r in runs:
-        for w in r.meta.get("warnings", []):
-            print(f"warning: {r.name}: {w}", file=sys.stderr)
-        for w in r.meta.get("notes", []):
-            print(f"note: {r.name}: {w}", file=sys.stderr)
+        by_file.setdefault(r.meta.get("source", r.name), []).append(r)
+    for pieces in by_file.values():
+        for kind in ("warning", "note"):
+            said = {}
+            for r in pieces:
+                for w in r.meta.get(kind + "s", []):
+                    if not (kind == "note" and r.meta.get("link_lost") and "lost on the link" in w):
+                        said.setdefault(w, []).append(r.name)
+            for w, names in said.items():
+                order = [r.name for r in pieces]
+                at = [order.index(n) for n in names]
+                if len(names) == len(pieces) > 1:
+                    who = f"{names[0]} (all {len(names)} pieces)"
+                elif len(names) > 2 and at == list(range(at[0], at[-1] + 1)):  # a run of pieces
+                    who = f"{names[0]} to #{at[-1] + 1}"
+                else:
+                    who = ", ".join(names)
+                print(f"{kind}: {who}: {w}", file=sys.stderr)
+        lost = [r.meta["link_lost"] for r in pieces if r.meta.get("link_lost", (0, 0))[0]]
+        if lost:
+            n_lost, n = sum(a for a, _ in lost), sum(len(r.t) for r in pieces)
+            cut = f", and gaps cut it into {len(pieces)} pieces ({pieces[0].name}, #2-#{len(pieces)})" \
+                if len(pieces) > 1 else ""
+            print(f"note: {pieces[0].name}: {n_lost} samples lost on the link ({100 * n_lost / max(n, 1):.1f}%)"
+                  f"{cut}: left out of every fit", file=sys.stderr)
 
 
 def _cmd_diagnose(args) -> int:

@@ -317,6 +317,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
             f"samples off their nominal instants by up to {late.max() / 1e3:.1f} ms (soft timer?): "
             "values interpolated to the sample grid from their measured times")
     if filled:
+        run.meta["link_lost"] = (int(filled), len(tu))  # (a file's pieces are summed where it is printed)
         run.meta.setdefault("notes", []).append(
             f"{filled} samples lost on the link ({100 * filled / len(tu):.1f}%): left out of every fit")
     if no_pulse.mean() > 0.01:

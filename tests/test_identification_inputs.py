@@ -189,3 +189,26 @@ def test_an_interval_of_a_parameter_positive_by_nature_stays_positive():
     half = 1.96 * 1e-6
     assert (iz_lo, iz_hi) == pytest.approx((0.25 - half, 0.25 + half), rel=1e-9)  # small: the same
     assert x_lo < 0 < x_hi  # an offset may be negative: symmetric
+
+
+def test_a_run_cut_into_pieces_by_the_link_is_one_set_of_notes(capsys):
+    """A lossy link cut a run into 12 pieces, and the loader's notes came out 21 lines: each piece's
+    loss and gyro zero. A file's messages are said once, and its losses summed."""
+    from stid.cli import _print_load_warnings
+    from stid.run import Run
+
+    def piece(k, n, lost, file="drop.mcap"):
+        name = file + (f"#{k}" if k > 1 else "")
+        r = Run(name, np.arange(n) / 200.0, *(np.zeros(n) for _ in range(4)))
+        r.meta.update(source=f"logs/{file}", link_lost=(lost, n),
+                      notes=[f"{lost} samples lost on the link ({100 * lost / n:.1f}%): left out of every fit"]
+                      + (["gyro zero taken from the stand-still of drop.mcap (same boot)"] if k > 1 else []),
+                      warnings=["the file was cut short"])
+        return r
+
+    _print_load_warnings([piece(k, 1000, 400) for k in range(1, 5)] + [piece(1, 500, 0, "other.mcap")])
+    err = capsys.readouterr().err.splitlines()
+    assert err.count("warning: drop.mcap (all 4 pieces): the file was cut short") == 1
+    assert "note: drop.mcap#2 to #4: gyro zero taken from the stand-still of drop.mcap (same boot)" in err
+    assert any("1600 samples lost on the link (40.0%), and gaps cut it into 4 pieces" in e for e in err)
+    assert len(err) == 3 + 1, err  # and the other file's warning (it lost nothing)
