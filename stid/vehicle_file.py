@@ -175,8 +175,10 @@ def load_vehicle(path) -> Vehicle:
     mass = _number(doc, "mass", where)
     a = _number(doc, "a", where)
     b = _number(doc, "b", where)
-    if mass > 5000 or a > 10 or b > 10:
-        raise InputError(f"{where}: mass {mass} kg, a {a} m, b {b} m look implausible; "
+    odd = [f"{k} {v:g} {unit}" for k, v, unit, most in (("mass", mass, "kg", 5000), ("a", a, "m", 10),
+                                                         ("b", b, "m", 10)) if v > most]
+    if odd:
+        raise InputError(f"{where}: {', '.join(odd)} look{'s' if len(odd) == 1 else ''} implausible; "
                          "units are kg and m (not g or mm)")
     st = doc.get("steering", {})
     wh = doc.get("wheel", {})
