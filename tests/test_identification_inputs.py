@@ -90,6 +90,8 @@ def test_vehicle_file_without_mass(tmp_path):
     assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), "mass")
     v.write_text('mass = 9310\na = 232.6\nb = 287.4\n')
     assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), "kg and m")
+    v.write_text('mass = 3.2\na = 150\nb = 0.2\n')  # only a is wrong (mm): only a is named
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), ": a 150 m looks implausible")
     v.write_text("mass = [oops\n")
     assert_fails(stid("fit", write_csv(tmp_path / "a.csv", good_cols()), "--vehicle", v), "TOML")
 
