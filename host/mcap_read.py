@@ -207,8 +207,13 @@ def _match_gaps(data: LogData, seqs: list, times: list) -> None:
         return
     s = np.asarray(seqs, dtype=np.int64)
     t = np.asarray(times, dtype=np.int64)
-    for d in data.damage:  # damaged records (found here, or left out by a repair) took none unless a gap says so
-        if d.length and d.after_ns is not None and d.before_ns is not None:  # (at either end a loss shows no gap)
+    # a damaged record (found here, or left out by a repair) between intact frame messages took
+    # none of them unless a gap says so; one before the first or after the last may have taken
+    # some without a gap to show it (then it is not said either way)
+    first, last = int(t[0]), int(t[-1])
+    for d in data.damage:
+        if d.length and d.after_ns is not None and d.before_ns is not None and first <= d.after_ns \
+                and d.before_ns <= last:
             d.took_samples = False
     gap = np.flatnonzero(np.diff(s) != 1)
     explained = [(d, d.after_ns, d.before_ns) for d in data.damage]

@@ -316,6 +316,11 @@ def test_damage_is_placed_where_its_samples_were_and_damage_to_other_channels_lo
     assert len(log.damage) == 1 and np.array_equal(log.samples["t_host_ns"], clean_t)
     note = log.damage_note()
     assert "missing" not in note and "every sample is intact" in note, note
+    # the last frames chunk: what it took leaves no gap in the numbering (no frame after it), and
+    # the chunks after it (the view, the closing stats) hold no frames; its loss must still be said
+    log = damaged(frames[-1])
+    assert len(log.samples) < len(clean_t)
+    assert "samples there are missing" in log.damage_note() and "intact" not in log.damage_note()
 
 
 def _stid(*args):
