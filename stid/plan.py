@@ -243,14 +243,22 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
         ]
         best = None
         for label, extra in options:
+            try:
+                check_grip(model, params, extra)  # (1.5x the speed or the steer may ask too much)
+            except InputError:
+                continue
             sd = predict(model, params, manoeuvres + [extra], noise)["sd"][name] / abs(params[name])
             gain = (1 / sd ** 2 - 1 / rel ** 2) / extra.duration  # information per second of driving
             if best is None or gain > best[0]:
                 best = (gain, label, extra, sd)
+        if best is None:
+            out.append(f"{name}: none of the additions it weighs can be driven (too much lateral acceleration)")
+            continue
         gain, label, extra, sd = best
         extra, sd = _long_enough(model, params, manoeuvres, noise, name, extra, rel, target, gain)
         reach = (f"then sd {100 * sd:.2g}%" if sd <= target else
-                 f"which still leaves sd {100 * sd:.2g}%: the target is beyond what this manoeuvre adds")
+                 f"which still leaves sd {100 * sd:.2g}%: the target is beyond what {MAX_PLAN_S / 3600:g} h of "
+                 "this manoeuvre adds")
         out.append(f"{name} sd {100 * target:g}% needs {extra.label()} in addition ({reach}; now {100 * rel:.2g}%; "
                    "best of: more time, another speed, wider bandwidth, more steer)")
     names = base["names"]
@@ -262,19 +270,22 @@ def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
     return out
 
 
+MAX_PLAN_S = 4 * 3600.0  # seconds of one manoeuvre a plan suggests at most (a day of track time)
+
+
 def _long_enough(model, params, manoeuvres, noise, name, extra, rel, target, gain, tries: int = 8):
-    """``extra`` lengthened (in 10 s steps) until the plan predicts ``target`` for ``name``, and
-    the sd it then predicts. The information a manoeuvre adds grows with its duration, but a
-    parameter correlated with others gains less than its share of it: the first guess (information
-    adds, at ``gain`` per second) fell short by up to a quarter, so each guess is checked and
-    scaled by the information still missing."""
+    """``extra`` lengthened (in 10 s steps, to MAX_PLAN_S at most) until the plan predicts
+    ``target`` for ``name``, and the sd it then predicts. The information a manoeuvre adds grows
+    with its duration, but a parameter correlated with others gains less than its share of it:
+    the first guess (information adds, at ``gain`` per second) fell short by up to a quarter, so
+    each guess is checked and scaled by the information still missing."""
     need = (1 / target ** 2 - 1 / rel ** 2) / max(gain, 1e-300)
     sd = rel
     for _ in range(tries):
-        extra = replace(extra, duration=float(np.ceil(need / 10) * 10))
+        extra = replace(extra, duration=float(min(np.ceil(need / 10) * 10, MAX_PLAN_S)))
         sd = predict(model, params, manoeuvres + [extra], noise)["sd"][name] / abs(params[name])
         added = 1 / sd ** 2 - 1 / rel ** 2
-        if sd <= target or added <= 0:
+        if sd <= target or added <= 0 or extra.duration >= MAX_PLAN_S:
             break
         need = extra.duration * (1 / target ** 2 - 1 / rel ** 2) / added
     return extra, sd

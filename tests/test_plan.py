@@ -162,3 +162,21 @@ def test_the_driving_a_plan_suggests_reaches_its_target():
         added = Manoeuvre(speed, math.radians(amp), bw, dur)
         sd = predict(model, params, base + [added], noise)["sd"][name] / params[name]
         assert sd <= target * 1.01, (line, sd)  # (the label rounds the steer to 0.1 deg)
+
+
+def test_a_plan_suggests_only_driving_the_car_can_do_and_at_most_a_days_worth():
+    """At 6 m/s and 7 deg rms (0.86 g) it suggested 1.5x the speed (2 g), which its own check
+    refuses as input; and a target out of reach had it build spectra of 1.5e6 s of driving."""
+    import re
+
+    from stid.plan import MAX_PLAN_S, check_grip, suggestions
+
+    model, noise = Model("bicycle", VEHICLE), datasheet_noise(vehicle=VEHICLE)
+    params = dict(model.defaults(), **TRUE)
+    base = [Manoeuvre(6.0, math.radians(7), 4.0, 20.0)]
+    (line,) = suggestions(model, params, base, noise, {"Iz": 0.0001})
+    m = re.search(r"random steer ([0-9.]+) deg rms up to ([0-9.]+) Hz for ([0-9.]+) s at ([0-9.]+) m/s", line)
+    amp, bw, dur, speed = (float(g) for g in m.groups())
+    check_grip(model, params, Manoeuvre(speed, math.radians(amp), bw, dur))  # does not raise
+    (line,) = suggestions(model, params, base, noise, {"Iz": 1e-6})
+    assert f"for {MAX_PLAN_S:g} s" in line and "the target is beyond what 4 h" in line, line
