@@ -97,7 +97,7 @@ MAX_STEER_DEG = 30.0  # an RC car's steering lock
 def _check_options(args) -> None:
     """Values the simulated car, its link or its firmware cannot take, refused before the run.
     The firmware's limits are its own (firmware/micropython/app.py): on the board it would
-    refuse them only once the simulation had started (tests/test_sim_stream.py checks that
+    refuse them only once the simulation had started (tests/test_sim_physics.py checks that
     the two agree)."""
     from host import protocol
 
@@ -110,7 +110,8 @@ def _check_options(args) -> None:
     need(args.manoeuvre == "standstill" or 1.0 <= args.speed <= MAX_SPEED,
          f"--speed {args.speed:g}: a driving manoeuvre needs 1 to {MAX_SPEED:g} m/s (standing still: "
          "--manoeuvre standstill)")
-    need(0 < args.steer_amp <= MAX_STEER_DEG, f"--steer-amp {args.steer_amp:g}: give 0 to {MAX_STEER_DEG:g} degrees")
+    need(0 < args.steer_amp <= MAX_STEER_DEG,
+         f"--steer-amp {args.steer_amp:g}: give more than 0 and at most {MAX_STEER_DEG:g} degrees")
     need(10 <= args.rate <= 5000 and 1_000_000 % args.rate == 0,
          f"--rate {args.rate}: the firmware samples at 10 to 5000 Hz, a whole number of microseconds apart "
          "(e.g. 200, 500, 1000)")

@@ -128,15 +128,20 @@ def _floor_line(res, floor, se, args) -> str:
         return ""
     import math
 
-    if not all(math.isfinite(v) for v in floor.values()):
+    known = [o for o in floor if math.isfinite(floor[o])]
+    if not known:
         from stid.present import floor_words
 
         return "  " + floor_words(floor, se)
-    short = {o: floor[o] - res.fit[o] for o in res.fit
+    short = {o: floor[o] - res.fit[o] for o in known
              if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
     on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"
     text = (f"  noise floor (what a correct model reaches {on}): "
-            + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in floor))
+            + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in known))
+    if len(known) < len(floor):
+        from stid.present import floor_words
+
+        text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
     if short:
         import shlex
 
@@ -179,22 +184,21 @@ def _print_load_warnings(runs) -> None:
                     if not (kind == "note" and r.meta.get("link_lost") and "lost on the link" in w):
                         said.setdefault(w, []).append(r.name)
             for w, names in said.items():
-                order = [r.name for r in pieces]
-                at = [order.index(n) for n in names]
-                if len(names) == len(pieces) > 1:
-                    who = f"{names[0]} (all {len(names)} pieces)"
-                elif len(names) > 2 and at == list(range(at[0], at[-1] + 1)):  # a run of pieces
-                    who = f"{names[0]} to #{at[-1] + 1}"
-                else:
-                    who = ", ".join(names)
+                who = (f"{names[0]} (all {len(names)} pieces)" if len(names) == len(pieces) > 1
+                       else _piece_names(names))
                 print(f"{kind}: {who}: {w}", file=sys.stderr)
         lost = [r.meta["link_lost"] for r in pieces if r.meta.get("link_lost", (0, 0))[0]]
         if lost:
             n_lost, n = sum(a for a, _ in lost), sum(len(r.t) for r in pieces)
-            cut = f", and gaps cut it into {len(pieces)} pieces ({pieces[0].name}, #2-#{len(pieces)})" \
-                if len(pieces) > 1 else ""
-            print(f"note: {pieces[0].name}: {n_lost} samples lost on the link ({100 * n_lost / max(n, 1):.1f}%)"
-                  f"{cut}: left out of every fit", file=sys.stderr)
+            cut = (f"; the log is in {len(pieces)} pieces, cut where samples were lost or the car restarted "
+                   f"({_piece_names([r.name for r in pieces])})") if len(pieces) > 1 else ""
+            print(f"note: {pieces[0].name}: {n_lost} samples lost on the link ({100 * n_lost / max(n, 1):.1f}%), "
+                  f"left out of every fit{cut}", file=sys.stderr)
+
+
+def _piece_names(names: list) -> str:
+    """drop.mcap#3, #4, #5: the pieces of one file, its name said once."""
+    return ", ".join([names[0]] + [f"#{n.rsplit('#', 1)[1]}" if "#" in n else n for n in names[1:]])
 
 
 def _cmd_diagnose(args) -> int:

@@ -41,19 +41,23 @@ def _command(runs, vehicle_path, *rest) -> str:
 
 
 def floor_words(floor: dict, se: dict | None = None) -> str:
-    """The noise floor, or why there is none (``se``: its standard errors, when known)."""
-    import math
-
-    if not all(math.isfinite(v) for v in floor.values()):
-        wide = {o: s for o, s in (se or {}).items() if math.isfinite(s) and not math.isfinite(floor.get(o, 0.0))}
-        if wide:
-            return ("noise floor: not determined by this data (standard error "
-                    + ", ".join(f"{o} {s:.0f}" for o, s in wide.items()) + " points): it needs steering across "
-                    "frequencies, such as random steer, not only circles or steps")
-        return ("noise floor: not estimated (the stretches are too short for its 1 s predictor in 5 folds; "
-                "log longer runs)")
-    return ("noise floor " + ", ".join(f"{o} {v:.1f}%" for o, v in floor.items())
-            + " (what a correct model reaches here)")
+    """The noise floor per output, or why an output has none (``se``: its standard errors)."""
+    known = [o for o, v in floor.items() if math.isfinite(v)]
+    wide = {o: (se or {})[o] for o in floor if o not in known and math.isfinite((se or {}).get(o, math.nan))}
+    parts = []
+    if known:
+        parts.append("noise floor " + ", ".join(f"{o} {floor[o]:.1f}%" for o in known)
+                     + " (what a correct model reaches here)")
+    if wide:
+        parts.append(("" if known else "noise floor: ") + ", ".join(wide) + " not determined by this data "
+                     "(standard error " + ", ".join(f"{s:.0f}" for s in wide.values()) + " points): it needs "
+                     "steering across frequencies, such as random steer, not only circles or steps")
+    rest = [o for o in floor if o not in known and o not in wide]
+    if rest:
+        parts.append(("" if known or wide else "noise floor: ") + ("" if not (known or wide) else
+                     ", ".join(rest) + " ") + "not estimated (the stretches are too short for its 1 s predictor "
+                     "in 5 folds; log longer runs)")
+    return "; ".join(parts)
 
 
 def _screened_line(d) -> str:
@@ -185,20 +189,23 @@ def _verdict(entries, runs=None, vehicle_path=None) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
     best = min(entries, key=lambda e: e["bic"])
 
+    known = [o for o in ("ay", "r") if math.isfinite(fl[o])]
+
     def short(e):
-        return {o: fl[o] - e["fit"][o] for o in ("ay", "r")
-                if fl[o] - e["fit"][o] > max(0.5, 2.576 * se.get(o, 0.0))}
+        return {o: fl[o] - e["fit"][o] for o in known if fl[o] - e["fit"][o] > max(0.5, 2.576 * se.get(o, 0.0))}
 
     gap = short(best)
     # one model has no rival to be best of: the verdict is its distance to the floor alone
     one = len(entries) == 1
     text = f"verdict: {best['model']}" + ("" if one else " is the best of these by BIC")
-    if not all(math.isfinite(v) for v in fl.values()):
+    if not known:
         if one:
             return text + ": with no noise floor on this data, nothing says how close it comes to a correct model"
         return text + " (with no noise floor on this data, nothing says how close it comes to a correct model)"
     if not gap:
-        text += (" reaches" if one else " and reaches") + " the noise floor: nothing more this data can show"
+        text += ((" reaches" if one else " and reaches") + " the noise floor"
+                 + (f" of {', '.join(known)} (there is none for the other)" if len(known) < 2 else "")
+                 + ": nothing more this data can show")
     else:
         text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
                  + " short of the noise floor; to see what is missing:\n"

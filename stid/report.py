@@ -128,7 +128,7 @@ def overview_figure(runs):
     fig, axes = plt.subplots(4, 1, figsize=(10, 6.5), sharex=True)
     for k, run in enumerate(runs):
         col = COLORS[(k + 1) % len(COLORS)]
-        t = run.t  # the log's time (a run cut into pieces keeps it)
+        t = run.t  # the run's own time, as the time figures (a piece a gap cut off starts at 0)
         for ax, y, lab in zip(axes, (run.vx, np.degrees(run.steer), run.ay, run.r),
                               ("vx [m/s]", "steer [deg]", "ay [m/s^2]", "r [rad/s]")):
             ax.plot(t, y, color=col, lw=0.7, label=run.name)

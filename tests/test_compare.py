@@ -109,7 +109,12 @@ def test_a_floor_the_data_do_not_determine_is_not_given_and_nothing_claims_to_re
     floor, se = _floor_from(({"ay": [steady], "r": [0.01 * y]}, {"ay": [y], "r": [y]}, [folds]))
     assert se["ay"] > UNDETERMINED_SE and np.isnan(floor["ay"]) and floor["r"] > 98
     words = floor_words(floor, se)
-    assert words.startswith("noise floor: not determined by this data (standard error ay") and "nan" not in words
-    entry = {"model": "bicycle", "fit": {"ay": 99.5, "r": 99.0}, "bic": 0.0, "noise_floor": floor,
+    assert words.startswith(f"noise floor r {floor['r']:.1f}% (what a correct model reaches here); ay not "
+                            "determined by this data (standard error") and "nan" not in words, words
+    entry = {"model": "bicycle", "fit": {"ay": 99.5, "r": 90.0}, "bic": 0.0, "noise_floor": floor,
              "noise_floor_stderr": se}
+    assert _verdict([entry]).startswith("verdict: bicycle stays r ")  # r's floor still judges r
+    entry["fit"]["r"] = floor["r"]
+    assert "reaches the noise floor of r (there is none for the other)" in _verdict([entry])
+    entry["noise_floor"] = {"ay": float("nan"), "r": float("nan")}
     assert "reaches" not in _verdict([entry]) and "no noise floor on this data" in _verdict([entry])

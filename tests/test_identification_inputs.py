@@ -208,9 +208,11 @@ def test_a_run_cut_into_pieces_by_the_link_is_one_set_of_notes(capsys):
                       warnings=["the file was cut short"])
         return r
 
-    _print_load_warnings([piece(k, 1000, 400) for k in range(1, 5)] + [piece(1, 500, 0, "other.mcap")])
+    # piece #2 was too short to keep: the names are the pieces', not their places in the list
+    _print_load_warnings([piece(k, 1000, 400) for k in (1, 3, 4, 5)] + [piece(1, 500, 0, "other.mcap")])
     err = capsys.readouterr().err.splitlines()
     assert err.count("warning: drop.mcap (all 4 pieces): the file was cut short") == 1
-    assert "note: drop.mcap#2 to #4: gyro zero taken from the stand-still of drop.mcap (same boot)" in err
-    assert any("1600 samples lost on the link (40.0%), and gaps cut it into 4 pieces" in e for e in err)
+    assert "note: drop.mcap#3, #4, #5: gyro zero taken from the stand-still of drop.mcap (same boot)" in err
+    assert ("note: drop.mcap: 1600 samples lost on the link (40.0%), left out of every fit; the log is in 4 pieces, "
+            "cut where samples were lost or the car restarted (drop.mcap, #3, #4, #5)") in err, err
     assert len(err) == 3 + 1, err  # and the other file's warning (it lost nothing)

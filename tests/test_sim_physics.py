@@ -225,7 +225,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, ar
     (["--batch", "1000"], "--batch 1000: the firmware sends 1 to 38 samples per frame"),
     (["--batch", "30", "--wheel-speeds"], "--batch 30: the firmware sends 1 to 22 samples per frame"),
     (["--speed", "-5"], "--speed -5: a driving manoeuvre needs 1 to 30 m/s"),
-    (["--steer-amp", "90"], "--steer-amp 90: give 0 to 30 degrees"),
+    (["--steer-amp", "90"], "--steer-amp 90: give more than 0 and at most 30 degrees"),
     (["--ber", "2"], "--ber 2: a probability"),
     (["--bandwidth", "0"], "--bandwidth 0: give a positive frequency"),
     (["--still", "-1"], "--still must be 0 or more"),

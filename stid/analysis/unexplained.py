@@ -78,8 +78,9 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     for r in reasons:
         u.where.append(r)
     if not all(np.isfinite(floor[o]) for o in OUTS):
-        u.where.append("the runs are too short for the noise floor's predictor (it needs ~8 s of driving "
-                       "per run): what a correct model reaches here is unknown")
+        from stid.present import floor_words
+
+        u.where.append(floor_words(floor, floor_se) + ": what a correct model reaches here is unknown")
         return u
     if not short:
         u.where.append(f"{model_name} is at the noise floor of this data: "

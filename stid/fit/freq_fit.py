@@ -71,9 +71,9 @@ def fit_freq(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     result.extra["frfs"] = frfs
     dof = max(len(res.fun) - len(space.free), 1)
     result.extra["chi2_red"] = float(res.fun @ res.fun / dof)
-    result.interval = ("95% intervals: noise only (the frequency responses' variance from coherence and "
-                       "averages, inflated by the reduced chi-square when the model misses it); --method time "
-                       "also widens them for model error")
+    result.interval = ("95% intervals: noise only (from the frequency-response fit's Jacobian and residuals, "
+                       "inflated by the reduced chi-square when the model misses them); --method time also "
+                       "widens them for model error")
     for w in warnings:
         result.warn(w)
     for note in getattr(stretches, "notes", []):  # what was left out, the sensor chain assumed
