@@ -105,19 +105,19 @@ def disagreements(parts: dict, names) -> list:
     out = []
     for kind, groups in parts.items():
         for n in names:
-            vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n)) for g in groups]
-            vals = [(lab, v, ci) for lab, v, ci in vals if ci is not None]
+            vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n),
+                     dict(zip(g.result.names, g.result.half95)).get(n)) for g in groups]
+            vals = [v for v in vals if v[2] is not None]
             bad = False
             for i in range(len(vals)):
                 for j in range(i + 1, len(vals)):
-                    hi_ = Z99_OVER_Z95 * (vals[i][2][1] - vals[i][2][0]) / 2
-                    hj = Z99_OVER_Z95 * (vals[j][2][1] - vals[j][2][0]) / 2
+                    hi_, hj = Z99_OVER_Z95 * vals[i][3], Z99_OVER_Z95 * vals[j][3]
                     diff = abs(vals[i][1] - vals[j][1])
                     if diff > np.hypot(hi_, hj) and diff > MATERIAL * max(abs(vals[i][1]), abs(vals[j][1])):
                         bad = True
             if bad:
                 unit = unit_suffix(groups[0].result.units.get(n, ""))
-                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}] at {lab}" for lab, v, ci in vals)
+                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}] at {lab}" for lab, v, ci, _ in vals)
                 out.append((kind, n, f"{n} {txt}{unit}"))
     return out
 

@@ -132,9 +132,9 @@ def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-
         # fit, as wide as its printed interval: model error and geometry included; the two fits'
         # data differ, so their errors are taken as independent)
         D = eta * v.L / v.mass + v.a / p_hat["Cr"]
-        lo, hi = res.ci95[res.names.index("Cr")]
+        se_cr = res.half95[res.names.index("Cr")] / 1.959964
         var = ((v.b * v.L / (v.mass * D ** 2)) ** 2 * ss.stderr[0] ** 2
-               + (v.b * v.a / (D * p_hat["Cr"]) ** 2) ** 2 * ((hi - lo) / (2 * 1.959964)) ** 2)
+               + (v.b * v.a / (D * p_hat["Cr"]) ** 2) ** 2 * se_cr ** 2)
         res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr "
                                                  f"(std. error {np.sqrt(var):.4g})")
         res.extra["eta"] = ss.value("eta")

@@ -242,9 +242,9 @@ def _warn_poorly_determined(result: FitResult, pieces, vehicle, lateral: bool = 
         result.warn(f"the driven wheels barely slip (rear slip above {100 * SLIP_MIN:g}% for {slipping:.1f} s): "
                     "Cx is poorly determined; include a hard acceleration or braking")
     weak = []
-    for name, (lo, hi) in zip(result.names, result.ci95):
+    for name, half, (lo, hi) in zip(result.names, result.half95, result.ci95):
         v = result.value(name)
-        if name == "CA" or not v or (hi - lo) / 2 <= POOR_HALF_WIDTH * abs(v):
+        if name == "CA" or not v or half <= POOR_HALF_WIDTH * abs(v):
             continue
         if name == "Cx":
             if not weak_slip:

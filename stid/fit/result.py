@@ -63,12 +63,16 @@ class FitResult:
         return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
 
     @property
-    def ci95(self) -> np.ndarray:
+    def half95(self) -> np.ndarray:
+        """Each 95% interval's half-width, as its kind makes it (t quantile times the standard
+        error, plus any allowance): what a test of two values against their intervals takes."""
         dof = self.ci_dof if self.ci_dof else max(self.n - len(self.values), 1)
-        q = stdtrit(dof, 0.975)
-        half = q * self.stderr
-        if self.ci_allowance is not None:
-            half = half + self.ci_allowance
+        half = stdtrit(dof, 0.975) * self.stderr
+        return half + self.ci_allowance if self.ci_allowance is not None else half
+
+    @property
+    def ci95(self) -> np.ndarray:
+        half = self.half95
         lo, hi = self.values - half, self.values + half
         # a parameter positive by nature gets the same relative half-width in log space (where the
         # solver fits it): an interval [-1693, 6595] N/rad for a cornering stiffness holds values no
