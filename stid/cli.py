@@ -171,8 +171,10 @@ def _vehicle_and_runs(args, chain_warning: bool = False):
 
 
 def _print_load_warnings(runs) -> None:
-    """The loaders' warnings and notes, each said once per file: a run that gaps on the link
-    cut into pieces (name#2, #3, ...) shares most of them, and its losses add up."""
+    """The loaders' warnings and notes, each said once per file: a log a lossy link cut into
+    pieces (name#2, #3, ...) gives most of them to every piece."""
+    from stid.load import piece_names
+
     by_file = {}
     for r in runs:
         by_file.setdefault(r.meta.get("source", r.name), []).append(r)
@@ -181,24 +183,11 @@ def _print_load_warnings(runs) -> None:
             said = {}
             for r in pieces:
                 for w in r.meta.get(kind + "s", []):
-                    if not (kind == "note" and r.meta.get("link_lost") and "lost on the link" in w):
-                        said.setdefault(w, []).append(r.name)
+                    said.setdefault(w, []).append(r.name)
             for w, names in said.items():
                 who = (f"{names[0]} (all {len(names)} pieces)" if len(names) == len(pieces) > 1
-                       else _piece_names(names))
+                       else piece_names(names))
                 print(f"{kind}: {who}: {w}", file=sys.stderr)
-        lost = [r.meta["link_lost"] for r in pieces if r.meta.get("link_lost", (0, 0))[0]]
-        if lost:
-            n_lost, n = sum(a for a, _ in lost), sum(len(r.t) for r in pieces)
-            cut = (f"; the log is in {len(pieces)} pieces, cut where samples were lost or the car restarted "
-                   f"({_piece_names([r.name for r in pieces])})") if len(pieces) > 1 else ""
-            print(f"note: {pieces[0].name}: {n_lost} samples lost on the link ({100 * n_lost / max(n, 1):.1f}%), "
-                  f"left out of every fit{cut}", file=sys.stderr)
-
-
-def _piece_names(names: list) -> str:
-    """drop.mcap#3, #4, #5: the pieces of one file, its name said once."""
-    return ", ".join([names[0]] + [f"#{n.rsplit('#', 1)[1]}" if "#" in n else n for n in names[1:]])
 
 
 def _cmd_diagnose(args) -> int:

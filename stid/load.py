@@ -195,6 +195,7 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
         runs.append(_convert(piece, log, vehicle, name, str(path)))
         runs[-1].meta["segment"] = int(piece["segment"][0]) if "segment" in (piece.dtype.names or ()) else 0
     _share_gyro_bias(runs)
+    _link_losses(runs)
     # (whoever prints a run's warnings names the run: they do not repeat the file's name)
     if log.truncated:
         for r in runs:
@@ -211,6 +212,24 @@ def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
     for r in runs:
         input_checks.check_kinematics(r, source="mcap")
     return runs
+
+
+def _link_losses(runs) -> None:
+    """The samples a log lost on the link, said once, on its first piece: a lossy link cuts a
+    log into pieces, and each piece saying its own share made a note line per piece."""
+    n_lost = sum(r.meta.get("link_lost", 0) for r in runs)
+    if not n_lost:
+        return
+    n = sum(len(r.t) for r in runs)
+    cut = (f"; the log is in {len(runs)} pieces, cut where samples were lost or the car restarted "
+           f"({piece_names([r.name for r in runs])})") if len(runs) > 1 else ""
+    runs[0].meta.setdefault("notes", []).append(
+        f"{n_lost} samples lost on the link ({100 * n_lost / n:.1f}%), left out of every fit{cut}")
+
+
+def piece_names(names: list) -> str:
+    """drop.mcap#3, #4, #5: the pieces of one log, its name said once."""
+    return ", ".join([names[0]] + [f"#{n.rsplit('#', 1)[1]}" if "#" in n else n for n in names[1:]])
 
 
 def _share_gyro_bias(runs) -> None:
@@ -317,9 +336,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
             f"samples off their nominal instants by up to {late.max() / 1e3:.1f} ms (soft timer?): "
             "values interpolated to the sample grid from their measured times")
     if filled:
-        run.meta["link_lost"] = (int(filled), len(tu))  # (a file's pieces are summed where it is printed)
-        run.meta.setdefault("notes", []).append(
-            f"{filled} samples lost on the link ({100 * filled / len(tu):.1f}%): left out of every fit")
+        run.meta["link_lost"] = int(filled)  # (said once for the whole log: _link_losses)
     if no_pulse.mean() > 0.01:
         run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): steer taken as 0 there")
     clip = units.clipped(s["ay"], hello) | units.clipped(s["ax"], hello)

@@ -197,19 +197,22 @@ def test_a_run_cut_into_pieces_by_the_link_is_one_set_of_notes(capsys):
     """A lossy link cut a run into 12 pieces, and the loader's notes came out 21 lines: each piece's
     loss and gyro zero. A file's messages are said once, and its losses summed."""
     from stid.cli import _print_load_warnings
+    from stid.load import _link_losses
     from stid.run import Run
 
     def piece(k, n, lost, file="drop.mcap"):
         name = file + (f"#{k}" if k > 1 else "")
         r = Run(name, np.arange(n) / 200.0, *(np.zeros(n) for _ in range(4)))
-        r.meta.update(source=f"logs/{file}", link_lost=(lost, n),
-                      notes=[f"{lost} samples lost on the link ({100 * lost / n:.1f}%): left out of every fit"]
-                      + (["gyro zero taken from the stand-still of drop.mcap (same boot)"] if k > 1 else []),
+        r.meta.update(source=f"logs/{file}", link_lost=lost,  # (as the loader's _convert leaves them)
+                      notes=["gyro zero taken from the stand-still of drop.mcap (same boot)"] if k > 1 else [],
                       warnings=["the file was cut short"])
         return r
 
     # piece #2 was too short to keep: the names are the pieces', not their places in the list
-    _print_load_warnings([piece(k, 1000, 400) for k in (1, 3, 4, 5)] + [piece(1, 500, 0, "other.mcap")])
+    drop, other = [piece(k, 1000, 400) for k in (1, 3, 4, 5)], [piece(1, 500, 0, "other.mcap")]
+    _link_losses(drop)  # (the loader, per log)
+    _link_losses(other)
+    _print_load_warnings(drop + other)
     err = capsys.readouterr().err.splitlines()
     assert err.count("warning: drop.mcap (all 4 pieces): the file was cut short") == 1
     assert "note: drop.mcap#3, #4, #5: gyro zero taken from the stand-still of drop.mcap (same boot)" in err
