@@ -44,7 +44,7 @@ from stid.analysis.residuals import analyse
 from stid.analysis.unexplained import describe_unexplained
 from stid.fit import dataset
 from stid.fit.fitting import fit
-from stid.models.effect import Effect, available_effects
+from stid.models.effect import available_effects
 from stid.models.model import Model, parse_model_name
 from stid.models.params import unit_suffix
 
@@ -307,8 +307,7 @@ ITERATED_SIM_COST = 3  # a nonlinear effect's simulation is iterated: about thre
 
 def _step_cost(c) -> float:
     """A candidate's linearised step in simulations: one at the off value, one per parameter."""
-    iterated = available_effects()[c.effect].force_correction is not Effect.force_correction  # (Effect.nonlinear)
-    return (1 + len(_offable(c.effect))) * (ITERATED_SIM_COST if iterated else 1)
+    return (1 + len(_offable(c.effect))) * (ITERATED_SIM_COST if available_effects()[c.effect].iterated() else 1)
 
 
 def _shares(items: list, n: int, cost) -> list:

@@ -108,7 +108,7 @@ def steer_dft(m: Manoeuvre, fs: float = ANALYSIS_FS):
     return f, np.sqrt(p * n * n) * m.amp, n
 
 
-MAX_AY_RMS = 9.81  # m/s^2: 1 g rms of lateral acceleration is beyond any tyre's grip
+MAX_AY_RMS = G  # m/s^2: 1 g rms of lateral acceleration is beyond any tyre's grip
 
 
 def check_grip(model: Model, params: dict, m: Manoeuvre) -> None:
@@ -116,7 +116,7 @@ def check_grip(model: Model, params: dict, m: Manoeuvre) -> None:
     acceleration than any tyre gives (the linear model would happily plan it)."""
     ay = float(abs(model.freqresp(params, np.array([0.05]), m.speed)[0, 0])) * m.amp
     if not ay <= MAX_AY_RMS:
-        raise InputError(f"manoeuvre {m.label()}: at {m.speed:g} m/s that steer asks for {ay / 9.81:.1f} g of lateral "
+        raise InputError(f"manoeuvre {m.label()}: at {m.speed:g} m/s that steer asks for {ay / G:.1f} g of lateral "
                          "acceleration (rms), more than any tyre gives; drive slower or steer less (the linear "
                          "model holds to about 0.4 g)")
 

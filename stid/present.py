@@ -4,7 +4,6 @@ result objects; this only lays them out, for a person who reads it once)."""
 from __future__ import annotations
 
 import math
-
 import shlex
 import textwrap
 
@@ -49,14 +48,13 @@ def floor_words(floor: dict, se: dict | None = None) -> str:
         parts.append("noise floor " + ", ".join(f"{o} {floor[o]:.1f}%" for o in known)
                      + " (what a correct model reaches here)")
     if wide:
-        parts.append(("" if known else "noise floor: ") + ", ".join(wide) + " not determined by this data "
+        parts.append(("" if parts else "noise floor: ") + ", ".join(wide) + " not determined by this data "
                      "(standard error " + ", ".join(f"{s:.0f}" for s in wide.values()) + " points): it needs "
                      "steering across frequencies, such as random steer, not only circles or steps")
     rest = [o for o in floor if o not in known and o not in wide]
-    if rest:
-        parts.append(("" if known or wide else "noise floor: ") + ("" if not (known or wide) else
-                     ", ".join(rest) + " ") + "not estimated (the stretches are too short for its 1 s predictor "
-                     "in 5 folds; log longer runs)")
+    if rest:  # (alone, it is the whole floor: no outputs named)
+        parts.append((", ".join(rest) + " " if parts else "noise floor: ") + "not estimated (the stretches are "
+                     "too short for its 1 s predictor in 5 folds; log longer runs)")
     return "; ".join(parts)
 
 

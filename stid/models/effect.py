@@ -131,7 +131,12 @@ class Effect:
     @property
     def nonlinear(self) -> bool:
         """Needs the iterated simulation (a force that depends on the slip angles)."""
-        return type(self).force_correction is not Effect.force_correction
+        return type(self).iterated()
+
+    @classmethod
+    def iterated(cls) -> bool:
+        """``nonlinear``, asked of the class (before any model is built with it)."""
+        return cls.force_correction is not Effect.force_correction
 
     @property
     def maps_steer(self) -> bool:
