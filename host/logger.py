@@ -33,7 +33,8 @@ from host import protocol as p
 from host.errors import HostError
 from host.frame_decoder import FrameDecoder
 from host.link_watch import LinkWatch, advice, describe_rejects
-from host.mcap_log import McapLog, holds_a_log
+from host.mcap_log import McapLog
+from host.mcap_scan import holds_a_log
 from host.recorder import Recorder
 
 EXIT_OK = 0

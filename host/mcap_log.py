@@ -150,17 +150,6 @@ OWN_CHUNKS = {"stid.chunks": "own"}
 SI_BATCH = 5000  # per-sample messages held before they are written as their own chunk(s)  # JavaScript (Foxglove) reads integers exactly only up to here
 
 
-def holds_a_log(path) -> bool:
-    """Whether ``path`` is an MCAP file (a recorded run, which nothing of stid overwrites)."""
-    from host.mcap_scan import MAGIC
-
-    try:
-        with open(path, "rb") as f:
-            return f.read(len(MAGIC)) == MAGIC
-    except OSError:
-        return False
-
-
 class McapLog:
     """Write a run. Every write goes to the open chunk; ``flush`` makes it durable."""
 

@@ -34,11 +34,23 @@ MAGIC = b"\x89MCAP0\r\n"
 HEADER, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 MESSAGE_INDEX, METADATA, DATA_END = 0x07, 0x0C, 0x0F
 OWN_CHUNKS_KEY = "stid.chunks"  # channel metadata "own": its messages never share a chunk (host.mcap_log)
+
 MAX_CHUNK = 256 * 1024 * 1024  # no chunk of ours decompresses beyond this: a bigger size is damage
 
 _REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
+
+
+def holds_a_log(path) -> bool:
+    """Whether ``path`` is an MCAP file (a recorded run, which nothing of stid overwrites)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
+
+
 # every chunk starts with its header fields, then the compression name: resync on that name
 _RESYNC = [(b"\x04\x00\x00\x00zstd", 8 + 8 + 8 + 4), (b"\x03\x00\x00\x00lz4", 8 + 8 + 8 + 4)]
 _DATA_END = b"\x0f\x04\x00\x00\x00\x00\x00\x00\x00"

@@ -17,7 +17,8 @@ from pathlib import Path
 from mcap.writer import CompressionType, Writer
 
 from host.hello_supply import check_source, hello_from_file
-from host.mcap_log import PROFILE, SCHEMAS, TOPICS, holds_a_log
+from host.mcap_log import PROFILE, SCHEMAS, TOPICS
+from host.mcap_scan import holds_a_log
 from host.mcap_read import REPAIR_METADATA, LogReadError, read_log, scan_log
 
 

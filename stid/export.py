@@ -39,7 +39,7 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None) ->
     out = Path(csv_path)
     if not out.resolve().parent.exists():
         raise InputError(f"output directory {out.resolve().parent} does not exist")
-    from host.mcap_log import holds_a_log
+    from host.mcap_scan import holds_a_log
 
     if holds_a_log(out):
         raise InputError(f"--csv {out} is a recorded run (an MCAP file): export never replaces one; give the CSV "

@@ -9,7 +9,7 @@ import numpy as np
 
 from host.errors import HostError
 from host.mcap_read import read_log
-from host.mcap_scan import MAGIC
+from host.mcap_scan import holds_a_log
 from host import units
 from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
@@ -80,9 +80,7 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
         raise InputError(f"{path} is a directory; give the run files (RUN.mcap or RUN.csv)")
     if path.stat().st_size == 0:
         raise InputError(f"{path} is empty")
-    with open(path, "rb") as f:
-        head = f.read(len(MAGIC))
-    if head == MAGIC:
+    if holds_a_log(path):
         return load_mcap(path, vehicle)
     if path.suffix.lower() == ".mcap":
         raise InputError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic at its start): "
