@@ -1,0 +1,256 @@
+"""A ROS bag as runs: the chosen topics timed by their header stamps, cut to the time
+all of them cover, brought onto one uniform grid, the IMU turned into the car's axes.
+
+What is done to the data is said in the run's notes: which topic gave what, the grid
+and how each signal reached it (measurements interpolated linearly; a command held
+until the next one, as the servo holds it), whether the accelerometer holds gravity,
+the gyro zero taken from the stand-still.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from stid import convert, input_checks, sensor_chain
+from stid.errors import InputError
+from stid.ros import topic_map
+from stid.ros.bag import Bag
+from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
+from stid.run import Run
+
+G = 9.81
+MAX_FILLED_GAP_S = 0.1  # as stid.load: a longer silence on any topic cuts the run
+MIN_SAMPLES = 20
+GAP_PERIODS = 2.5  # a step this many median periods long lost messages
+
+
+def load_bag(path, vehicle) -> list[Run]:
+    path = Path(path)
+    where = str(path)
+    table = vehicle.ros if vehicle is not None else {}
+    st = vehicle.raw.get("steering", {}) if vehicle is not None else {}
+    with Bag(path) as bag:
+        choice = topic_map.choose(bag.topics, table, "gain" in st, where, bag.listing())
+        parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
+        wanted = {}
+        for topic in parts.values():
+            wanted.setdefault(topic, FIELDS[bag.topics[topic].msgtype])
+        cols = bag.read(wanted)
+        counts = {t: bag.topics[t].count for t in wanted}
+    notes = list(choice.notes)
+    use_header = table.get("stamps", "header") == "header"
+    stamps_ns = {}
+    for part, topic in parts.items():
+        if not counts[topic] or len(cols[topic]["t_log"]) == 0:
+            raise InputError(f"{where}: the {topic_map.ROLE_WORDS[part]} topic {topic} holds no messages")
+        stamps_ns[topic] = _stamps(cols[topic], topic, use_header, notes, where)
+    # seconds from the first stamp: epoch nanoseconds as float64 would keep only ~0.2 us
+    origin = min(int(t[0]) for t in stamps_ns.values())
+    times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
+    t0 = max(times[t][0] for t in times)
+    t1 = min(times[t][-1] for t in times)
+    if t1 - t0 < MIN_SAMPLES * 0.005:
+        spans = ", ".join(f"{t} {(times[t][0] - _origin(times)) :.2f}-{(times[t][-1] - _origin(times)):.2f} s"
+                          for t in times)
+        raise InputError(f"{where}: the topics do not overlap in time ({spans}, from the bag's first stamp): a run "
+                         "needs the IMU, the odometry and the steering command at once")
+    imu_t = times[choice.imu]
+    rate = float(table.get("rate_hz") or 0.0) or 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
+    # on the IMU's own instants where they are uniform: its samples then reach the grid as they are
+    t0 = float(imu_t[np.searchsorted(imu_t, t0 - 1e-9)])
+    grid = t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
+    imu = cols[choice.imu]
+    acc = np.vstack([imu["linear_acceleration." + a] for a in "xyz"])
+    gyro = np.vstack([imu["angular_velocity." + a] for a in "xyz"])
+    acc, gyro = _body_axes(acc, gyro, table, vehicle, where, notes)
+    sig = {"ax": np.interp(grid, imu_t, acc[0]), "ay": np.interp(grid, imu_t, acc[1]),
+           "r": np.interp(grid, imu_t, gyro[2])}
+    od = cols[choice.odometry]
+    od_t = times[choice.odometry]
+    sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
+    steer_cols = cols[choice.steering]
+    st_t = times[choice.steering]
+    raw_steer = steer_cols["drive.steering_angle"] if choice.steering_type == ACKERMANN else steer_cols["data"]
+    # the servo holds each command until the next: held, not interpolated
+    held = raw_steer[np.clip(np.searchsorted(st_t, grid, side="right") - 1, 0, len(st_t) - 1)]
+    if choice.steering_type == FLOAT64:
+        from stid.steer_units import road_wheel_angle
+
+        steer, steer_notes = road_wheel_angle(held, sig["r"], sig["vx"], sig["ay"], vehicle, where, choice.steering)
+        notes += steer_notes
+    else:
+        steer = held
+    sig["steer"] = steer
+    _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
+    valid = _measured(grid, times, rate)
+    notes.insert(0, _grid_note(parts, times, counts, rate, grid, t0, t1, choice))
+    runs = []
+    for k, (a, b) in enumerate(_pieces(grid, times)):
+        if b - a < MIN_SAMPLES:
+            continue
+        name = path.name if k == 0 else f"{path.name}#{k + 1}"
+        cut = {key: v[a:b] for key, v in sig.items()}
+        v = None if valid[a:b].all() else valid[a:b]
+        run = Run(name=name, t=grid[a:b] - grid[a], steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"],
+                  ax=cut["ax"], meta={"source": where, "format": "ros", "fs": rate, "notes": list(notes) if k == 0
+                                      else [], "sensor_chain": sensor_chain.from_vehicle(vehicle),
+                                      "topics": dict(parts)}, valid=v)
+        runs.append(run)
+    if not runs:
+        raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
+                         f"{MAX_FILLED_GAP_S:g} s on some topic")
+    for run in runs:
+        _gyro_zero(run)
+        input_checks.check_kinematics(run, source="ros")
+    return runs
+
+
+def _origin(times) -> float:
+    return min(t[0] for t in times.values())
+
+
+def _stamps(col, topic, use_header, notes, where) -> np.ndarray:
+    """Nanoseconds (from the epoch or the bag's clock) of each message, increasing."""
+    log = col["t_log"].astype(np.int64)
+    if "header.stamp.sec" in col and use_header:
+        t = col["header.stamp.sec"].astype(np.int64) * 1_000_000_000 + col["header.stamp.nanosec"].astype(np.int64)
+        if np.all(t == 0):
+            notes.append(f"{topic}: header stamps are all zero: timed by the bag's receive times")
+            t = log
+    else:
+        t = log
+        if "header.stamp.sec" not in col:
+            notes.append(f"{topic} has no header: timed by the bag's receive times")
+    dt = np.diff(t)
+    back = np.flatnonzero(dt < 0)
+    if len(back):
+        k = int(back[0])
+        kind = "header stamps" if t is not log else "receive times"
+        raise InputError(f"{where}: {topic}'s {kind} go backwards at message {k + 2} of {len(t)} (by "
+                         f"{-dt[k] * 1e-6:.1f} ms, {(t[k + 1] - t[0]) * 1e-9:.2f} s in): two publishers on one topic, or a "
+                         "clock reset; record that topic from one source"
+                         + (", or time by receive: [ros] stamps = \"receive\"" if kind == "header stamps" else ""))
+    same = dt == 0
+    if same.any():
+        keep = np.concatenate([[True], ~same])
+        for k in col:
+            col[k] = col[k][keep]
+        t = t[keep]
+        notes.append(f"{topic}: {int(same.sum())} messages repeat the stamp before them: dropped")
+    return t
+
+
+def _body_axes(acc, gyro, table, vehicle, where, notes):
+    """IMU axes -> the car's (ISO 8855), in m/s^2 and rad/s; gravity found and said."""
+    if table.get("accel_unit") == "g":
+        acc = acc * G
+    if table.get("gyro_unit") == "deg/s":
+        gyro = np.radians(gyro)
+    m = topic_map.axes_matrix(table["imu_axes"], where) if "imu_axes" in table else np.eye(3)
+    acc, gyro = m @ acc, m @ gyro
+    mean = np.median(acc, axis=1)
+    norm = float(np.linalg.norm(mean))
+    if abs(norm - 1.0) < 0.15 and table.get("accel_unit") != "g":
+        raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} at rest-level: that is gravity in g, "
+                         "not m/s^2 (REP 145 wants m/s^2; the VESC driver's sensors/imu/raw sends g): add "
+                         "accel_unit = \"g\" to the vehicle file's [ros]")
+    if abs(norm - G) < 0.2 * G:
+        axis = int(np.argmax(np.abs(mean)))
+        if axis != 2 or mean[2] < 0:
+            seen = f"{'-' if mean[axis] < 0 else '+'}{'xyz'[axis]}"
+            raise InputError(f"{where}: gravity is on the car's {seen} axis after [ros] imu_axes "
+                             f"{table.get('imu_axes', ['x', 'y', 'z'])}: it must be on +z (z up); the IMU's "
+                             "mounting is declared wrong, see docs/ros.md")
+        roll = float(vehicle.sensors.get("mount_roll", 0.0)) if vehicle is not None else 0.0
+        pitch = float(vehicle.sensors.get("mount_pitch", 0.0)) if vehicle is not None else 0.0
+        if roll or pitch:
+            acc = convert.mount_rotation(roll, pitch) @ acc
+            notes.append(f"IMU tilt undone: roll {np.degrees(roll):+.2f} deg, pitch {np.degrees(pitch):+.2f} deg "
+                         "(the vehicle file's [sensors])")
+        tilt = np.degrees(np.arctan2(np.hypot(mean[0], mean[1]), mean[2]))
+        notes.append(f"the accelerometer holds gravity ({norm:.2f} m/s^2, {tilt:.1f} deg off z): ay is the "
+                     "specific force the car's y axis feels")
+    elif norm < 0.2 * G:
+        notes.append("the accelerometer has gravity removed (driver-side): ay taken as it is")
+    else:
+        raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} m/s^2 on average: neither gravity "
+                         "(9.81) nor gravity removed (0); check [ros] accel_unit")
+    return acc, gyro
+
+
+def _forward_speed(od, notes, topic) -> np.ndarray:
+    vx = od["twist.twist.linear.x"]
+    vy = od["twist.twist.linear.y"]
+    if np.sqrt(np.mean(vy ** 2)) > 0.3 * max(np.sqrt(np.mean(vx ** 2)), 1e-9):
+        notes.append(f"{topic}: the twist has a large sideways part (not in the car's frame, REP 105?): vx is "
+                     "its magnitude, signed as linear.x")
+        return np.sign(vx) * np.hypot(vx, vy)
+    return vx
+
+
+def _odometry_yaw(od, od_t, imu_t, imu_r, choice, notes) -> None:
+    """The odometry's yaw rate is not used (the VESC's is computed from the steering command,
+    not measured); an opposite sign is said, since it flips every comparison made with it."""
+    w = od["twist.twist.angular.z"]
+    if not np.any(w):
+        return
+    r = np.interp(od_t, imu_t, imu_r)
+    if np.std(r) > 0 and np.std(w) > 0 and np.corrcoef(r, w)[0, 1] < -0.5:
+        notes.append(f"{choice.odometry}'s yaw rate has the opposite sign to the IMU's (not used: r is the gyro's)")
+
+
+def _measured(grid, times, rate) -> np.ndarray:
+    """False at grid points inside a gap of some topic (lost messages): held, not measured."""
+    ok = np.ones(len(grid), bool)
+    for t in times.values():
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        for k in np.flatnonzero(dt > GAP_PERIODS * med):
+            ok[(grid > t[k] + med) & (grid < t[k + 1] - med)] = False
+    return ok
+
+
+def _pieces(grid, times):
+    """Cut where any topic is silent for more than MAX_FILLED_GAP_S."""
+    cuts = set()
+    for t in times.values():
+        for k in np.flatnonzero(np.diff(t) > MAX_FILLED_GAP_S):
+            a, b = np.searchsorted(grid, [t[k], t[k + 1]])
+            cuts.update((int(a), int(b)))
+    edges = sorted({0, len(grid), *cuts})
+    pieces = list(zip(edges[:-1], edges[1:]))
+    # the stretches inside a gap are not pieces
+    return [(a, b) for a, b in pieces if not any(
+        np.any(np.diff(t) > MAX_FILLED_GAP_S) and _inside_gap(grid[a], grid[b - 1], t) for t in times.values())]
+
+
+def _inside_gap(g0, g1, t) -> bool:
+    dt = np.diff(t)
+    for k in np.flatnonzero(dt > MAX_FILLED_GAP_S):
+        if g0 >= t[k] and g1 <= t[k + 1]:
+            return True
+    return False
+
+
+def _grid_note(parts, times, counts, rate, grid, t0, t1, choice) -> str:
+    rates = {t: 1.0 / float(np.median(np.diff(tt))) for t, tt in times.items()}
+    first = _origin(times)
+    last = max(t[-1] for t in times.values())
+    return (f"resampled to a uniform {rate:.1f} Hz grid: ay, ax, r from {parts['imu']} ({rates[parts['imu']]:.0f} Hz) "
+            f"and vx from {parts['odometry']} ({rates[parts['odometry']]:.0f} Hz) interpolated linearly, steer from "
+            f"{parts['steering']} ({rates[parts['steering']]:.0f} Hz, {choice.steering_type.split('/')[-1]}) held (a command holds until the next); "
+            f"{t1 - t0:.1f} s where all three overlap ({t0 - first:.2f} s at the start and {last - t1:.2f} s at the "
+            "end left out)")
+
+
+def _gyro_zero(run) -> None:
+    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs)
+    run.meta["gyro_bias"] = bias
+    if bias is None:
+        run.warn("the run never stands still: the gyro's zero is taken as the IMU gives it (start runs with ~2 s "
+                 "standing still)")
+        return
+    run.r = run.r - bias
+    run.meta.setdefault("notes", []).append(f"gyro zero {bias:+.4f} rad/s, from the stand-still, taken off r")

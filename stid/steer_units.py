@@ -1,0 +1,122 @@
+"""A steering signal from another tool as the front road-wheel angle [rad].
+
+Loggers record what they have: a servo pulse width [us], a servo command in 0-1 (the
+VESC's ``commands/servo/position``, 0.15-0.85 around 0.5304 on an F1TENTH car) or in
++-1. Fitted as radians, such a column gives parameters that are wrong by the
+unknown servo gain, with nothing to show it but wide intervals. A column in servo
+units is recognised by physics any car obeys and refused until the vehicle file says
+how it maps to the road-wheel angle:
+
+- while the car drives straight its road wheels point straight: a road-wheel angle is
+  within a trim of ~0 there (a few degrees), a 0-1 command sits near 0.5, a pulse near
+  1500 us;
+- no RC car steers its road wheels beyond ~35 deg (0.6 rad; F1TENTH cars: 0.42 rad), so a
+  column centred at 0 that reaches further is a +-1 command.
+
+The map: ``[steering] offset, gain`` (command = offset + gain * angle, the VESC's
+``steering_angle_to_servo_offset/gain``), or for pulse widths ``center_us, us_per_rad``
+(what ``stid calibrate --circle`` writes). The refusal gives the lines to add, with
+values estimated from the run's own kinematics (road-wheel angle ~ L r / vx when
+cornering gently).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stid.errors import InputError
+
+MAX_ROAD_WHEEL_RAD = 0.6
+STRAIGHT_TRIM_RAD = 0.2  # 11 deg: far beyond any trim, far inside 0.5 of a 0-1 command
+PULSE_US = (500.0, 2600.0)  # RC servo pulse widths (1000-2000 us standard, 500-2500 extended)
+STRAIGHT_R = 0.05  # rad/s: below this yaw rate, moving, the car drives straight
+MOVING_MPS = 1.0
+GENTLE_AY = 0.15 * 9.81  # kinematic steering holds when cornering gently (as stid calibrate --circle)
+
+
+def road_wheel_angle(x, r, vx, ay, vehicle, where: str, what: str = "steer"):
+    """``(angle [rad], notes)`` from the steering signal ``x`` (on the run's grid).
+
+    Parameters
+    ----------
+    x : ndarray
+        The steering signal as logged.
+    r, vx, ay : ndarray
+        Yaw rate [rad/s], speed [m/s], lateral acceleration [m/s^2] on the same grid (already
+        in SI units), to tell a straight line and to estimate the map.
+    vehicle : Vehicle or None
+        Its ``[steering]`` table holds the declared map.
+    where, what : str
+        The file and the column or topic, for the messages.
+    """
+    x = np.asarray(x, float)
+    st = (vehicle.raw.get("steering", {}) if vehicle is not None else {}) or {}
+    if "gain" in st:
+        return (x - float(st["offset"])) / float(st["gain"]), [
+            f"{what} is a servo command, turned into the road-wheel angle by the vehicle file's [steering] "
+            f"(angle = (command - {st['offset']:g}) / {st['gain']:g})"]
+    centre = _straight_centre(x, r, vx)
+    lo, hi = float(np.min(x)), float(np.max(x))
+    if PULSE_US[0] <= centre <= PULSE_US[1]:
+        if "center_us" in st or "us_per_rad" in st:
+            return (x - vehicle.steer_center_us) / vehicle.steer_us_per_rad, [
+                f"{what} is a servo pulse width [us], turned into the road-wheel angle by the vehicle file's "
+                f"[steering] (centre {vehicle.steer_center_us:g} us, {vehicle.steer_us_per_rad:g} us per rad)"]
+        raise _refused(where, what, f"a servo pulse width in us ({lo:.0f} to {hi:.0f} us, {centre:.0f} us when the "
+                                    "car drives straight)", x, r, vx, ay, vehicle, pulse=True)
+    if STRAIGHT_TRIM_RAD < abs(centre) <= 1.0 and (lo >= 0.0 or hi <= 0.0):
+        sign = "negated " if centre < 0 else ""
+        raise _refused(where, what, f"a {sign}servo command in 0-1 units ({lo:.2f} to {hi:.2f}, {centre:.2f} when the "
+                                    "car drives straight)", x, r, vx, ay, vehicle)
+    if STRAIGHT_TRIM_RAD < abs(centre) <= 1.0:
+        raise InputError(f"{where}: '{what}' is {centre:+.2f} while the car drives straight: not a road-wheel angle "
+                         f"in rad (that is ~0 there); if it is a servo command, declare its map: [steering] offset = "
+                         f"{centre:.3g} and gain = the command change per rad")
+    peak = float(np.max(np.abs(x)))
+    if MAX_ROAD_WHEEL_RAD < peak <= 1.0:
+        raise _refused(where, what, f"a servo command in +-1 units ({lo:.2f} to {hi:.2f}, beyond any RC car's "
+                                    f"steering lock of ~{MAX_ROAD_WHEEL_RAD:g} rad if it were radians)",
+                       x, r, vx, ay, vehicle)
+    return x, []
+
+
+def _straight_centre(x, r, vx) -> float:
+    """The median of ``x`` while moving straight (the whole column's when the run never does)."""
+    straight = (np.abs(vx) > MOVING_MPS) & (np.abs(r) < STRAIGHT_R)
+    if straight.sum() < 20:
+        return float(np.median(x))
+    return float(np.median(x[straight]))
+
+
+def estimate_map(x, r, vx, ay, L: float):
+    """``(offset, gain)`` of command = offset + gain * angle, from the kinematic road-wheel
+    angle L r / vx while cornering gently; None when the run does not tell (too little of
+    it, or the two do not follow each other)."""
+    ok = (np.abs(vx) > MOVING_MPS) & (np.abs(ay) < GENTLE_AY)
+    if ok.sum() < 50:
+        return None
+    delta = L * r[ok] / vx[ok]
+    cmd = x[ok]
+    if np.std(cmd) == 0 or np.std(delta) == 0 or abs(np.corrcoef(cmd, delta)[0, 1]) < 0.7:
+        return None
+    slope, icept = np.polyfit(cmd, delta, 1)  # angle = icept + slope * command
+    return float(-icept / slope), float(1.0 / slope)
+
+
+def _refused(where, what, looks, x, r, vx, ay, vehicle, pulse=False) -> InputError:
+    est = estimate_map(np.asarray(x, float), np.asarray(r, float), np.asarray(vx, float), np.asarray(ay, float),
+                       vehicle.L) if vehicle is not None else None
+    if pulse:
+        keys = ("center_us", "us_per_rad")
+        vals = (f"{est[0]:.0f}", f"{est[1]:.0f}") if est else (f"{_straight_centre(x, r, vx):.0f}", "?")
+    else:
+        keys = ("offset", "gain")
+        vals = (f"{est[0]:.4g}", f"{est[1]:.4g}") if est else (f"{_straight_centre(x, r, vx):.4g}", "?")
+    source = ("values estimated from this run's kinematics, road-wheel angle ~ L r / vx when cornering gently; "
+              "'stid calibrate --circle' or the car's own settings give them exactly" if est else
+              "the gain is the command change per rad of road-wheel angle, e.g. the VESC's "
+              "steering_angle_to_servo_gain; this run does not tell it")
+    lines = "\n".join(f"  {k} = {v}" for k, v in zip(keys, vals))
+    return InputError(f"{where}: '{what}' looks like {looks}, not a road-wheel angle in rad: fitted as radians every "
+                      f"parameter would be wrong. Declare its map in the vehicle file ({source}):\n"
+                      f"  [steering]\n{lines}")
