@@ -148,6 +148,13 @@ _ROS_UNIT_FIX = {"'r' looks like it is in deg/s": "add gyro_unit = \"deg/s\" to 
                      "add accel_unit = \"g\" and gyro_unit = \"deg/s\" to the vehicle file's [ros]"}
 
 
+def ay_gain(run):
+    """The least-squares gain of ay on vx*r over the run's slow part (~1 for consistent
+    units and signs), or a sentence saying why the run does not tell."""
+    est = _kinematic_gains(run)
+    return est if isinstance(est, str) else est[0]
+
+
 def _kinematic_gains(run):
     """(gain of ay on vx*r, sign of r against steer: +1, -1 or 0), or why not decidable."""
     from stid.fit import filters

@@ -137,7 +137,9 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
         cols[c] = x
     from stid.steer_units import road_wheel_angle
 
-    cols["steer"], steer_notes = road_wheel_angle(cols["steer"], cols["r"], cols["vx"], cols["ay"], vehicle, str(path))
+    fs = 1.0 / float(np.median(np.diff(cols["t"]))) if np.all(np.diff(cols["t"]) > 0) else 100.0
+    cols["steer"], steer_notes = road_wheel_angle(cols["steer"], cols["r"], cols["vx"], cols["ay"], fs, vehicle,
+                                                  str(path))
     _check_units(path, cols)
     t = cols.pop("t")
     warnings = []

@@ -31,10 +31,11 @@ STRAIGHT_TRIM_RAD = 0.2  # 11 deg: far beyond any trim, far inside 0.5 of a 0-1 
 PULSE_US = (500.0, 2600.0)  # RC servo pulse widths (1000-2000 us standard, 500-2500 extended)
 STRAIGHT_R = 0.05  # rad/s: below this yaw rate, moving, the car drives straight
 MOVING_MPS = 1.0
-GENTLE_AY = 0.15 * 9.81  # kinematic steering holds when cornering gently (as stid calibrate --circle)
+GENTLE_AY = 0.15 * 9.81  # the tyres are linear when cornering gently (as stid calibrate --circle)
+LOWPASS_HZ = 1.0  # below a 1:10 car's yaw natural frequency (2-5 Hz): the slow, quasi-steady part
 
 
-def road_wheel_angle(x, r, vx, ay, vehicle, where: str, what: str = "steer"):
+def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer"):
     """``(angle [rad], notes)`` from the steering signal ``x`` (on the run's grid).
 
     Parameters
@@ -44,6 +45,8 @@ def road_wheel_angle(x, r, vx, ay, vehicle, where: str, what: str = "steer"):
     r, vx, ay : ndarray
         Yaw rate [rad/s], speed [m/s], lateral acceleration [m/s^2] on the same grid (already
         in SI units), to tell a straight line and to estimate the map.
+    fs : float
+        Sampling rate of the grid [Hz].
     vehicle : Vehicle or None
         Its ``[steering]`` table holds the declared map.
     where, what : str
@@ -63,11 +66,11 @@ def road_wheel_angle(x, r, vx, ay, vehicle, where: str, what: str = "steer"):
                 f"{what} is a servo pulse width [us], turned into the road-wheel angle by the vehicle file's "
                 f"[steering] (centre {vehicle.steer_center_us:g} us, {vehicle.steer_us_per_rad:g} us per rad)"]
         raise _refused(where, what, f"a servo pulse width in us ({lo:.0f} to {hi:.0f} us, {centre:.0f} us when the "
-                                    "car drives straight)", x, r, vx, ay, vehicle, pulse=True)
+                                    "car drives straight)", x, r, vx, ay, fs, vehicle, pulse=True)
     if STRAIGHT_TRIM_RAD < abs(centre) <= 1.0 and (lo >= 0.0 or hi <= 0.0):
         sign = "negated " if centre < 0 else ""
         raise _refused(where, what, f"a {sign}servo command in 0-1 units ({lo:.2f} to {hi:.2f}, {centre:.2f} when the "
-                                    "car drives straight)", x, r, vx, ay, vehicle)
+                                    "car drives straight)", x, r, vx, ay, fs, vehicle)
     if STRAIGHT_TRIM_RAD < abs(centre) <= 1.0:
         raise InputError(f"{where}: '{what}' is {centre:+.2f} while the car drives straight: not a road-wheel angle "
                          f"in rad (that is ~0 there); if it is a servo command, declare its map: [steering] offset = "
@@ -76,7 +79,7 @@ def road_wheel_angle(x, r, vx, ay, vehicle, where: str, what: str = "steer"):
     if MAX_ROAD_WHEEL_RAD < peak <= 1.0:
         raise _refused(where, what, f"a servo command in +-1 units ({lo:.2f} to {hi:.2f}, beyond any RC car's "
                                     f"steering lock of ~{MAX_ROAD_WHEEL_RAD:g} rad if it were radians)",
-                       x, r, vx, ay, vehicle)
+                       x, r, vx, ay, fs, vehicle)
     return x, []
 
 
@@ -88,34 +91,47 @@ def _straight_centre(x, r, vx) -> float:
     return float(np.median(x[straight]))
 
 
-def estimate_map(x, r, vx, ay, L: float):
-    """``(offset, gain)`` of command = offset + gain * angle, from the kinematic road-wheel
-    angle L r / vx while cornering gently; None when the run does not tell (too little of
-    it, or the two do not follow each other)."""
+def estimate_map(x, r, vx, ay, L: float, fs: float):
+    """``(offset, gain, understeer_apart)`` of command = offset + gain * angle, or None when the
+    run does not tell.
+
+    In steady cornering the road-wheel angle is L r / vx + K vx r (K: the understeer
+    gradient): taking L r / vx alone makes |gain| too large by 1 + K vx^2 (18% on a 1:10 car at
+    3 m/s). Regressed on both, K drops out where the speed varied enough to tell the two
+    apart (``understeer_apart``). Both sides are low-passed at LOWPASS_HZ first: the yaw
+    rate's lag behind a quick steer is not steering geometry.
+    """
+    from stid.fit import filters
+
     ok = (np.abs(vx) > MOVING_MPS) & (np.abs(ay) < GENTLE_AY)
-    if ok.sum() < 50:
+    if ok.sum() < 2 * fs / LOWPASS_HZ:
         return None
-    delta = L * r[ok] / vx[ok]
-    cmd = x[ok]
-    if np.std(cmd) == 0 or np.std(delta) == 0 or abs(np.corrcoef(cmd, delta)[0, 1]) < 0.7:
+    sos = filters.butter_lowpass_sos(2, LOWPASS_HZ, fs)
+    lp = lambda v: filters.sosfiltfilt(sos, np.asarray(v, float))[ok]  # noqa: E731
+    speed = np.where(np.abs(vx) > MOVING_MPS, vx, MOVING_MPS)
+    cmd, kin, us = lp(x), lp(L * r / speed), lp(vx * r)
+    if np.std(cmd) == 0 or np.std(kin) == 0 or abs(np.corrcoef(cmd, kin)[0, 1]) < 0.7:
         return None
-    slope, icept = np.polyfit(cmd, delta, 1)  # angle = icept + slope * command
-    return float(-icept / slope), float(1.0 / slope)
+    apart = abs(np.corrcoef(kin, us)[0, 1]) < 0.99
+    cols = [np.ones_like(kin), kin] + ([us] if apart else [])
+    coef, *_ = np.linalg.lstsq(np.column_stack(cols), cmd, rcond=None)
+    return float(coef[0]), float(coef[1]), apart
 
 
-def _refused(where, what, looks, x, r, vx, ay, vehicle, pulse=False) -> InputError:
-    est = estimate_map(np.asarray(x, float), np.asarray(r, float), np.asarray(vx, float), np.asarray(ay, float),
-                       vehicle.L) if vehicle is not None else None
-    if pulse:
-        keys = ("center_us", "us_per_rad")
-        vals = (f"{est[0]:.0f}", f"{est[1]:.0f}") if est else (f"{_straight_centre(x, r, vx):.0f}", "?")
+def _refused(where, what, looks, x, r, vx, ay, fs, vehicle, pulse=False) -> InputError:
+    arrays = [np.asarray(v, float) for v in (x, r, vx, ay)]
+    est = estimate_map(*arrays, vehicle.L, fs) if vehicle is not None else None
+    keys = ("center_us", "us_per_rad") if pulse else ("offset", "gain")
+    fmt = "{:.0f}" if pulse else "{:.4g}"
+    vals = (fmt.format(est[0]), fmt.format(est[1])) if est else (fmt.format(_straight_centre(x, r, vx)), "?")
+    if est is None:
+        source = ("the gain is the command change per rad of road-wheel angle, e.g. the VESC's "
+                  "steering_angle_to_servo_gain; this run does not tell it")
     else:
-        keys = ("offset", "gain")
-        vals = (f"{est[0]:.4g}", f"{est[1]:.4g}") if est else (f"{_straight_centre(x, r, vx):.4g}", "?")
-    source = ("values estimated from this run's kinematics, road-wheel angle ~ L r / vx when cornering gently; "
-              "'stid calibrate --circle' or the car's own settings give them exactly" if est else
-              "the gain is the command change per rad of road-wheel angle, e.g. the VESC's "
-              "steering_angle_to_servo_gain; this run does not tell it")
+        source = ("values estimated from this run's kinematics, road-wheel angle = L r / vx + understeer, when "
+                  "cornering gently" + ("" if est[2] else "; the speed hardly varied, so the understeer could not be "
+                                        "told apart and |gain| is too large by 1 + K vx^2")
+                  + "; 'stid calibrate --circle' or the car's own settings give them exactly")
     lines = "\n".join(f"  {k} = {v}" for k, v in zip(keys, vals))
     return InputError(f"{where}: '{what}' looks like {looks}, not a road-wheel angle in rad: fitted as radians every "
                       f"parameter would be wrong. Declare its map in the vehicle file ({source}):\n"

@@ -184,9 +184,9 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
     if layout.accel_g:
         acc, gyro = acc / G, np.degrees(gyro)
     for k, t in enumerate(t_imu):
-        if layout.backwards_at is not None and k == layout.backwards_at:
-            t = t - 0.012
-        m = imu_cls(header=header(t, "imu_link", layout.imu_topic), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
+        # a stamp that goes back (a clock step in the driver): received in its place all the same
+        stamp_t = t - 0.012 if k == layout.backwards_at else t
+        m = imu_cls(header=header(stamp_t, "imu_link", layout.imu_topic), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
                     orientation_covariance=zero9, angular_velocity=V3(x=gyro[0, k], y=gyro[1, k], z=gyro[2, k]),
                     angular_velocity_covariance=zero9,
                     linear_acceleration=V3(x=acc[0, k], y=acc[1, k], z=acc[2, k]),

@@ -78,12 +78,14 @@ def load_bag(path, vehicle) -> list[Run]:
     if choice.steering_type == FLOAT64:
         from stid.steer_units import road_wheel_angle
 
-        steer, steer_notes = road_wheel_angle(held, sig["r"], sig["vx"], sig["ay"], vehicle, where, choice.steering)
+        steer, steer_notes = road_wheel_angle(held, sig["r"], sig["vx"], sig["ay"], rate, vehicle, where,
+                                               choice.steering)
         notes += steer_notes
     else:
         steer = held
     sig["steer"] = steer
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
+    _check_turned(grid, sig, table, where)
     valid = _measured(grid, times, rate)
     notes.insert(0, _grid_note(parts, times, counts, rate, grid, t0, t1, choice))
     runs = []
@@ -96,7 +98,9 @@ def load_bag(path, vehicle) -> list[Run]:
         run = Run(name=name, t=grid[a:b] - grid[a], steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"],
                   ax=cut["ax"], meta={"source": where, "format": "ros", "fs": rate, "notes": list(notes) if k == 0
                                       else [], "sensor_chain": sensor_chain.from_vehicle(vehicle),
-                                      "topics": dict(parts)}, valid=v)
+                                      "topics": dict(parts),
+                                      # the stamp [ns] of the run's t = 0, to line it up with other data
+                                      "stamp0_ns": origin + int(round(grid[a] * 1e9))}, valid=v)
         runs.append(run)
     if not runs:
         raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
@@ -178,6 +182,32 @@ def _body_axes(acc, gyro, table, vehicle, where, notes):
         raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} m/s^2 on average: neither gravity "
                          "(9.81) nor gravity removed (0); check [ros] accel_unit")
     return acc, gyro
+
+
+def _check_turned(grid, sig, table, where) -> None:
+    """An IMU turned 90 deg about z and not declared so: the car's lateral acceleration is on
+    its x axis (ay = vx*r holds for ax instead). Said with the imu_axes that fix it."""
+    lo, hi = input_checks.CONSISTENT_GAIN
+
+    def gain(channel):
+        run = Run("", grid - grid[0], sig["steer"], sig[channel], sig["r"], sig["vx"])
+        g = input_checks.ay_gain(run)
+        return None if isinstance(g, str) else g
+
+    g_y = gain("ay")
+    if g_y is not None and lo <= g_y <= hi:
+        return
+    g_x = gain("ax")
+    if g_x is None or not lo <= abs(g_x) <= hi:
+        return
+    s = 1 if g_x > 0 else -1
+    rows = table.get("imu_axes", ["x", "y", "z"])
+    flip = lambda a: a[1:] if a.startswith("-") else "-" + a  # noqa: E731
+    fixed = [rows[1] if s < 0 else flip(rows[1]), rows[0] if s > 0 else flip(rows[0]), rows[2]]
+    axes = ", ".join(f'"{a}"' for a in fixed)
+    declared = "declared" if "imu_axes" in table else "assumed (none declared)"
+    raise InputError(f"{where}: ax follows vx*r (ax = {g_x:.2f} x vx*r) and ay does not: the IMU is turned 90 deg "
+                     f"about z from the axes {declared}; set in the vehicle file's [ros]: imu_axes = [{axes}]")
 
 
 def _forward_speed(od, notes, topic) -> np.ndarray:

@@ -1,0 +1,218 @@
+"""ROS bags (ROS 2 MCAP, ROS 1) written in the test from plain physics with rosbags' own
+writers, in each topic layout a real car's stack produces, load to the same run as the
+same measurements given as a contract CSV, and fit to the same parameters.
+
+The car and its sensors are tests/ros_data.py (a linear single-track model integrated
+there, not stid's). A contract CSV holds the IMU's samples on its own instants, the
+command held, the odometry's speed interpolated: what a careful hand-written converter
+would give.
+"""
+
+import subprocess
+
+import numpy as np
+import pytest
+
+import ros_data as rd
+from conftest import tool
+from stid.errors import InputError
+from stid.load import load_file
+from stid.vehicle_file import load_vehicle
+
+
+SECONDS = 25.0  # 20 s of driving: the kinematic checks need 14 s above 1 m/s
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return rd.drive(duration=SECONDS)
+
+
+@pytest.fixture(scope="module")
+def contract(drive, tmp_path_factory):
+    d = tmp_path_factory.mktemp("contract")
+    vehicle = load_vehicle(rd.vehicle_toml(d / "car.toml"))
+    (run,) = load_file(rd.contract_csv(drive, d / "contract.csv"), vehicle)
+    return run
+
+
+def _vehicle(tmp_path, extra=""):
+    return load_vehicle(rd.vehicle_toml(tmp_path / "car.toml", extra))
+
+
+def _on_contract_times(run, contract, drive):
+    """The contract run's columns at the bag run's instants (both in the drive's seconds)."""
+    t_bag = (run.meta["stamp0_ns"] - rd.EPOCH_NS) * 1e-9 + run.t
+    t_csv = drive.t[drive.imu_k][0] + contract.t
+    return t_bag, {k: np.interp(t_bag, t_csv, getattr(contract, k)) for k in ("steer", "ay", "r", "vx")}
+
+
+def _same_data(run, contract, drive, r_tol=1e-3):
+    """The bag run holds the contract's measurements: ay, steer exactly (they reach the grid
+    untouched), vx to float rounding, r up to the gyro zero taken off from the stand-still
+    (its noise is 0.005 rad/s / sqrt(600 still samples) = 2e-4 rad/s)."""
+    t_bag, ref = _on_contract_times(run, contract, drive)
+    inside = (t_bag > drive.t[drive.imu_k][1]) & (t_bag < drive.t[drive.imu_k][-2])
+    assert inside.sum() > 0.98 * len(run.t)
+    for k, tol in (("ay", 1e-6), ("steer", 1e-6), ("vx", 1e-6), ("r", r_tol)):
+        err = np.max(np.abs(getattr(run, k)[inside] - ref[k][inside]))
+        assert err < tol, f"{k} differs from the contract CSV's by up to {err:.3g}"
+
+
+LAYOUTS = {
+    # F1TENTH names, nothing declared
+    "f1tenth defaults": (rd.Layout(), ""),
+    "IMU turned 90 deg, gravity removed": (rd.Layout(imu_to_body=("y", "-x", "z"), gravity=False),
+                                           '[ros]\nimu_axes = ["y", "-x", "z"]\n'),
+    "odometry yaw sign opposite": (rd.Layout(odom_yaw_sign=-1.0), ""),
+    "other topic names, declared": (rd.Layout(imu_topic="/imu/data", odom_topic="/vesc/odom", steer_topic="/drive"),
+                                    '[ros]\nimu = "/imu/data"\nodometry = "/vesc/odom"\nsteering = "/drive"\n'),
+    "VESC units (g, deg/s) and a gyro bias": (rd.Layout(accel_g=True, gyro_bias=0.02),
+                                              '[ros]\naccel_unit = "g"\ngyro_unit = "deg/s"\n'),
+    "servo command 0-1 with its map": (rd.Layout(servo=True, steer_topic="/commands/servo/position"),
+                                       f"[steering]\noffset = {rd.SERVO_OFFSET}\ngain = {rd.SERVO_GAIN}\n"),
+}
+
+
+# every layout as ROS 2 MCAP; as ROS 1 (another serialisation), the two IMU mountings
+CASES = [(n, False) for n in LAYOUTS] + [(n, True) for n in list(LAYOUTS)[:2]]
+
+
+@pytest.mark.parametrize("name,ros1", CASES, ids=[f"{n}-{'ROS 1' if r1 else 'ROS 2 MCAP'}" for n, r1 in CASES])
+def test_bag_holds_the_contract_data(name, ros1, drive, contract, tmp_path):
+    layout, table = LAYOUTS[name]
+    bag = rd.write_bag(drive, tmp_path / ("run.bag" if ros1 else "run"), layout, ros1=ros1)
+    (run,) = load_file(bag, _vehicle(tmp_path, table))
+    assert run.meta["format"] == "ros"
+    _same_data(run, contract, drive)
+    notes = " ".join(run.meta["notes"])
+    assert "resampled to a uniform 200.0 Hz grid" in notes and "held" in notes
+    assert ("holds gravity" in notes) == layout.gravity
+    if layout.odom_yaw_sign < 0:
+        assert "opposite sign to the IMU's" in notes
+    if layout.gyro_bias:
+        assert "gyro zero +0.02" in notes
+
+
+def test_rates_differ_and_jitter(tmp_path):
+    """IMU 100 Hz, odometry 33 Hz, command 50 Hz, none on the others' instants."""
+    d = rd.drive(duration=SECONDS, imu_hz=100, odom_hz=33)
+    vehicle = _vehicle(tmp_path)
+    (contract,) = load_file(rd.contract_csv(d, tmp_path / "c.csv"), vehicle)
+    (run,) = load_file(rd.write_bag(d, tmp_path / "run", rd.Layout()), vehicle)
+    assert run.fs == pytest.approx(100.0)
+    _same_data(run, contract, d)
+    assert "/odom (33 Hz)" in run.meta["notes"][0]
+
+
+def test_ros2_and_ros1_fit_as_the_contract_csv(drive, contract, tmp_path):
+    """Same parameters from the bags (the rosbag2 directory, its .mcap file, a ROS 1 bag with
+    the IMU turned) as from the contract CSV, within a tenth of their standard error; and
+    near the truth of the physics that made them."""
+    from stid.fit.fitting import fit
+
+    vehicle = _vehicle(tmp_path)
+    turned = _vehicle(tmp_path / "..", '[ros]\nimu_axes = ["y", "-x", "z"]\n')
+    bag2 = rd.write_bag(drive, tmp_path / "run2", rd.Layout())
+    bag1 = rd.write_bag(drive, tmp_path / "run1.bag", rd.Layout(imu_to_body=("y", "-x", "z")), ros1=True)
+    ref = fit([contract], vehicle, "bicycle", "time", intervals="noise")
+    for path, veh in ((bag2, vehicle), (rd.ros2_mcap(bag2), vehicle), (bag1, turned)):
+        res = fit(load_file(path, veh), veh, "bicycle", "time", intervals="noise")
+        assert res.names == ref.names
+        for name, v, v_ref, se in zip(res.names, res.values, ref.values, ref.stderr):
+            assert abs(v - v_ref) < 0.1 * se, f"{path.name}: {name} {v:.4g} vs {v_ref:.4g} from the CSV (se {se:.2g})"
+    truth = {"Cf": rd.CF, "Cr": rd.CR, "Iz": rd.IZ}
+    for name, v in zip(ref.names, ref.values):
+        # the model sees the command's 50 Hz steps through 200 Hz samples: ~1% off, measured
+        assert v == pytest.approx(truth[name], rel=0.05)
+
+
+# -- what a user is told ------------------------------------------------------------------
+
+def _error(tmp_path, drive, layout, table="", ros1=False):
+    bag = rd.write_bag(drive, tmp_path / ("run.bag" if ros1 else "run"), layout, ros1=ros1)
+    with pytest.raises(InputError) as e:
+        load_file(bag, _vehicle(tmp_path, table))
+    msg = str(e.value)
+    return msg
+
+
+BAD = {
+    "no IMU topic": (rd.Layout(drop_topics=("/sensors/imu/raw",)), "",
+                     r"has no IMU topic \(sensor_msgs/msg/Imu\); its topics: /ackermann_drive "
+                     r"\(ackermann_msgs/msg/AckermannDriveStamped, 1250 messages\), /odom"),
+    "topics never overlap": (rd.Layout(stamp_offset_s={"/odom": 100.0}), "",
+                             r"the topics do not overlap in time \(/sensors/imu/raw 0\.00-25\.00 s, /odom 100\.01-124\.99 s"),
+    "a stamp goes back": (rd.Layout(backwards_at=3000), "",
+                          r"/sensors/imu/raw's header stamps go backwards at message 3001 of 5000 \(by 7\.0 ms"),
+    "unknown message type": (rd.Layout(extra_topics={"/imu_vec": "geometry_msgs/msg/Vector3Stamped"}),
+                             '[ros]\nimu = "/imu_vec"\n',
+                             r'\[ros\] imu = "/imu_vec" is a geometry_msgs/msg/Vector3Stamped topic, a message type '
+                             r"stid does not read as the IMU \(it reads sensor_msgs/msg/Imu; topics of that type in "
+                             r".*: /sensors/imu/raw\)"),
+    "a [ros] topic that is not there": (rd.Layout(), '[ros]\nodometry = "/vesc/odom"\n',
+                                        r'\[ros\] odometry = "/vesc/odom": .* has no such topic; its topics: '
+                                        r"/ackermann_drive .*, /odom \(nav_msgs/msg/Odometry, 1250 messages\), "
+                                        r"/sensors/imu/raw \(sensor_msgs/msg/Imu, 5000 messages\)"),
+    "IMU turned, not declared": (rd.Layout(imu_to_body=("y", "-x", "z")), "",
+                                 r'the IMU is turned 90 deg about z .*imu_axes = \["y", "-x", "z"\]'),
+    "IMU upside down, not declared": (rd.Layout(imu_to_body=("x", "-y", "-z")), "",
+                                      r"gravity is on the car's -z axis"),
+    "VESC's g not declared": (rd.Layout(accel_g=True), "", r'that is gravity in g.*accel_unit = "g"'),
+    "VESC's deg/s not declared": (rd.Layout(accel_g=True), '[ros]\naccel_unit = "g"\n',
+                                  r"'r' looks like it is in deg/s; add gyro_unit = \"deg/s\""),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_bad_bag_is_one_line_naming_what_is_missing(name, drive, tmp_path):
+    layout, table, pattern = BAD[name]
+    msg = _error(tmp_path, drive, layout, table)
+    assert "\n" not in msg
+    assert __import__("re").search(pattern, msg), msg
+
+
+def test_servo_command_without_its_map_is_refused_with_the_lines_to_add(drive, tmp_path):
+    msg = _error(tmp_path, drive, rd.Layout(servo=True, steer_topic="/commands/servo/position"))
+    assert "looks like a servo command in 0-1 units" in msg
+    lines = dict(ln.strip().split(" = ") for ln in msg.split("[steering]\n")[1].splitlines())
+    # estimated from the run's kinematics (road-wheel angle ~ L r / vx): the servo map of the
+    # car that made the bag, up to its understeer
+    assert float(lines["offset"]) == pytest.approx(rd.SERVO_OFFSET, abs=0.01)
+    assert float(lines["gain"]) == pytest.approx(rd.SERVO_GAIN, rel=0.05)
+    # the lines, added as they are, make the bag load
+    (run,) = load_file(tmp_path / "run", _vehicle(tmp_path, "[steering]\n" + "\n".join(
+        f"{k} = {v}" for k, v in lines.items()) + "\n"))
+    assert np.corrcoef(run.steer, np.interp(run.t, drive.t - drive.t[0], drive.steer))[0, 1] > 0.95
+
+
+def test_cli_says_one_line_and_exits_non_zero(drive, tmp_path):
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(drop_topics=("/odom",)))
+    car = rd.vehicle_toml(tmp_path / "car.toml")
+    p = subprocess.run([tool("stid"), "fit", str(bag), "--vehicle", str(car), "--model", "bicycle"],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode != 0
+    assert "Traceback" not in p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "has no odometry topic (nav_msgs/msg/Odometry)" in lines[0], p.stderr
+
+
+def test_a_bag_is_told_by_content_not_name(drive, tmp_path):
+    """A ROS 1 bag named .mcap is not read as an MCAP; a ROS 2 MCAP is not read as a stid-log."""
+    bag1 = rd.write_bag(drive, tmp_path / "run.bag", rd.Layout(), ros1=True)
+    wrong = tmp_path / "run1.mcap"
+    bag1.rename(wrong)
+    with pytest.raises(InputError, match="holds a ROS 1 bag but is not named .bag"):
+        load_file(wrong, _vehicle(tmp_path))
+    mcap = rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run2", rd.Layout()))
+    (run,) = load_file(mcap, _vehicle(tmp_path))
+    assert run.meta["format"] == "ros"
+
+
+def test_ros_table_keys_are_checked(tmp_path):
+    with pytest.raises(InputError, match=r"unknown key 'imu_axis' in \[ros\]: did you mean 'imu_axes'\?"):
+        _vehicle(tmp_path, '[ros]\nimu_axis = ["y", "-x", "z"]\n')
+    with pytest.raises(InputError, match="is a mirror image, not a mounting"):
+        _vehicle(tmp_path, '[ros]\nimu_axes = ["y", "x", "z"]\n')
+    with pytest.raises(InputError, match=r"\[steering\] has gain but no offset"):
+        _vehicle(tmp_path, "[steering]\ngain = -1.2\n")
