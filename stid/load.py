@@ -171,7 +171,7 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
                             f"resampled to {1 / med:.1f} Hz by linear interpolation")
         t = tu
     extra = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(float) for c in df.columns
-             if c not in REQUIRED and c not in OPTIONAL and c not in table.values()}
+             if c not in REQUIRED and c not in OPTIONAL}
     if len(t) != len(df):  # extra columns stay on the rows' own times: not carried onto a new grid
         extra = {}
     run = Run(name=path.name, t=t - t[0], steer=cols["steer"], ay=cols["ay"], r=cols["r"], vx=cols["vx"],
