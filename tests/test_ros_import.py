@@ -216,3 +216,63 @@ def test_ros_table_keys_are_checked(tmp_path):
         _vehicle(tmp_path, '[ros]\nimu_axes = ["y", "x", "z"]\n')
     with pytest.raises(InputError, match=r"\[steering\] has gain but no offset"):
         _vehicle(tmp_path, "[steering]\ngain = -1.2\n")
+
+
+# -- the fast MCAP reader against rosbags ---------------------------------------------------
+
+def _libmcap_copy(src, dst, chunk_size=64 * 1024):
+    """The bag re-chunked as ``ros2 bag record`` writes (libmcap's defaults: zstd chunks with
+    CRCs, a message index after each), by the mcap library."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        reader = make_reader(f)
+        w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        w.start(profile=reader.get_header().profile, library="test")
+        schemas, channels = {}, {}
+        for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas[schema.id], channel.metadata)
+            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        w.finish()
+    return dst
+
+
+def _damage_first_index(path):
+    """Point the first message index entry of the file one byte off (outside any CRC)."""
+    import struct
+
+    buf = bytearray(path.read_bytes())
+    pos = 8
+    while True:
+        op, length = struct.unpack_from("<BQ", buf, pos)
+        if op == 0x07:
+            entry = pos + 9 + 6 + 8  # after channel id and length: the first entry's offset
+            struct.pack_into("<Q", buf, entry, struct.unpack_from("<Q", buf, entry)[0] + 1)
+            break
+        pos += 9 + length
+    path.write_bytes(bytes(buf))
+
+
+def test_fast_mcap_reader_gives_what_rosbags_gives(drive, tmp_path, monkeypatch):
+    from stid.ros import mcap_blocks
+
+    vehicle = _vehicle(tmp_path)
+    libmcap = _libmcap_copy(rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run", rd.Layout())), tmp_path / "rec.mcap")
+    topics = ["/sensors/imu/raw", "/odom", "/ackermann_drive"]
+    assert mcap_blocks.read_topics(libmcap, topics) is not None  # the fast path is the one taken
+    (fast,) = load_file(libmcap, vehicle)
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(libmcap.read_bytes())
+    _damage_first_index(damaged)
+    assert mcap_blocks.read_topics(damaged, topics) is None  # a wrong index is noticed: rosbags reads it
+    (slow_damaged,) = load_file(damaged, vehicle)
+    monkeypatch.setattr(mcap_blocks, "read_topics", lambda *a: None)
+    (slow,) = load_file(libmcap, vehicle)
+    for k in ("t", "steer", "ay", "r", "vx", "ax"):
+        np.testing.assert_array_equal(getattr(fast, k), getattr(slow, k), err_msg=k)
+        np.testing.assert_array_equal(getattr(fast, k), getattr(slow_damaged, k), err_msg=k)

@@ -87,44 +87,81 @@ class _Layout:
         return pos + 4 + self._u32(pos)
 
 
-def read_fields(raws: list, typestore, typename: str, fields: list[str], cdr: bool, topic: str) -> dict:
-    """``{field: array}`` over all ``raws`` (bytes of one topic's messages, in order).
+class Rows:
+    """Messages of one serialised length lying in a byte buffer: ``raw[start:start + width]``
+    each. Only the bytes a field needs are ever gathered."""
+
+    def __init__(self, raw: np.ndarray, starts: np.ndarray, width: int):
+        self.raw, self.starts, self.width = raw, starts, int(width)
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def columns(self, offset: int, size: int) -> np.ndarray:
+        """The bytes ``offset:offset + size`` of every message, as an (n, size) array."""
+        return self.raw[self.starts[:, None] + (offset + np.arange(size))]
+
+    def row(self, k: int) -> bytes:
+        return self.raw[self.starts[k]:self.starts[k] + self.width].tobytes()
+
+
+def as_rows(raws: list) -> list:
+    """Serialised messages (bytes) as Rows, one per run of equal lengths."""
+    if not raws:
+        return []
+    lengths = np.fromiter(map(len, raws), np.int64, len(raws))
+    if np.all(lengths == lengths[0]):
+        return [Rows(np.frombuffer(b"".join(raws), np.uint8), np.arange(len(raws)) * int(lengths[0]),
+                     int(lengths[0]))]
+    return [Rows(np.frombuffer(bytes(r), np.uint8), np.zeros(1, np.int64), len(r)) for r in raws]
+
+
+def read_fields(blocks: list, typestore, typename: str, fields: list[str], cdr: bool, topic: str,
+                order=None) -> dict:
+    """``{field: array}`` over all messages of a topic.
 
     Parameters
     ----------
-    raws : list of bytes
-        The serialised messages (CDR for ROS 2, ROS 1 serialisation otherwise).
+    blocks : list of Rows
+        The serialised messages (CDR for ROS 2, ROS 1 serialisation otherwise), in file order
+        (``as_rows`` makes them from bytes).
     typestore : rosbags Typestore
         Holds ``typename``'s definition (from the bag).
     fields : list of str
         Dotted paths of scalar fields, e.g. ``"linear_acceleration.x"``, ``"header.stamp.sec"``.
+    order : int array or None
+        The messages' order in time, when the file order is not.
     """
-    n = len(raws)
+    n = sum(len(b) for b in blocks)
     if n == 0:
         return {f: np.zeros(0) for f in fields}
-    try:
-        out = _vectorised(raws, typestore, typename, fields, cdr)
-    except _Varies:
-        out = None
-    if out is not None and all(_agrees(out, k, raws[k], typestore, typename, fields, cdr) for k in (0, n - 1)):
-        return out
+    first, last = blocks[0].row(0), blocks[-1].row(len(blocks[-1]) - 1)
+    if len({b.width for b in blocks}) == 1:
+        try:
+            out = _vectorised(blocks, first, typestore, typename, fields, cdr)
+        except _Varies:
+            out = None
+        if out is not None and all(_agrees(out, k, raw, typestore, typename, fields, cdr)
+                                   for k, raw in ((0, first), (n - 1, last))):
+            return out if order is None else {f: v[order] for f, v in out.items()}
+    raws = [b.row(k) for b in blocks for k in range(len(b))]
+    if order is not None:
+        raws = [raws[k] for k in order]
     return _one_by_one(raws, typestore, typename, fields, cdr, topic)
 
 
-def _vectorised(raws, typestore, typename, fields, cdr):
-    lengths = np.fromiter(map(len, raws), np.int64, len(raws))
-    if np.any(lengths != lengths[0]):
-        return None
-    layout = _Layout(typestore, cdr, bytes(raws[0]))
+def _vectorised(blocks, first: bytes, typestore, typename, fields, cdr):
+    layout = _Layout(typestore, cdr, first)
     layout.walk(typename, layout.base, "")
     missing = [f for f in fields if f not in layout.leaves]
     if missing:
         raise _Varies(f"no scalar field {missing[0]}")
-    blob = np.frombuffer(b"".join(raws), np.uint8).reshape(len(raws), int(lengths[0]))
-    fixed = [slice(0, 4)] if cdr else []  # the encapsulation (endianness) must be the same throughout
-    fixed += [slice(w, w + 4) for w in layout.length_words]
-    for s in fixed:
-        if np.any(blob[:, s] != blob[0, s]):
+    gather = lambda off, size: np.vstack([b.columns(off, size) for b in blocks])  # noqa: E731
+    # the layout holds for every message whose length words (and encapsulation) are the first's
+    fixed = [(0, 4)] if cdr else []
+    fixed += [(w, 4) for w in layout.length_words]
+    for off, size in fixed:
+        if np.any(gather(off, size) != np.frombuffer(first[off:off + size], np.uint8)):
             return None
     order = "<" if layout.little else ">"
     out = {}
@@ -132,7 +169,7 @@ def _vectorised(raws, typestore, typename, fields, cdr):
         off, typ = layout.leaves[f]
         size = _SIZE[typ]
         dtype = np.dtype(f"{order}{_KIND[typ]}{size}")
-        out[f] = np.ascontiguousarray(blob[:, off:off + size]).view(dtype).ravel().astype(float)
+        out[f] = np.ascontiguousarray(gather(off, size)).view(dtype).ravel().astype(float)
     return out
 
 

@@ -85,7 +85,6 @@ def load_bag(path, vehicle) -> list[Run]:
         steer = held
     sig["steer"] = steer
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
-    _check_turned(grid, sig, table, where)
     valid = _measured(grid, times, rate)
     notes.insert(0, _grid_note(parts, times, counts, rate, grid, t0, t1, choice))
     runs = []
@@ -107,7 +106,13 @@ def load_bag(path, vehicle) -> list[Run]:
                          f"{MAX_FILLED_GAP_S:g} s on some topic")
     for run in runs:
         _gyro_zero(run)
-        input_checks.check_kinematics(run, source="ros")
+        try:
+            input_checks.check_kinematics(run, source="ros")
+        except InputError:
+            _check_turned(run, table, where)  # a better message, when that is what is wrong
+            raise
+        if any("could not be checked" in w for w in run.meta.get("warnings", [])):
+            _check_turned(run, table, where)
     return runs
 
 
@@ -184,14 +189,13 @@ def _body_axes(acc, gyro, table, vehicle, where, notes):
     return acc, gyro
 
 
-def _check_turned(grid, sig, table, where) -> None:
+def _check_turned(run, table, where) -> None:
     """An IMU turned 90 deg about z and not declared so: the car's lateral acceleration is on
     its x axis (ay = vx*r holds for ax instead). Said with the imu_axes that fix it."""
     lo, hi = input_checks.CONSISTENT_GAIN
 
     def gain(channel):
-        run = Run("", grid - grid[0], sig["steer"], sig[channel], sig["r"], sig["vx"])
-        g = input_checks.ay_gain(run)
+        g = input_checks.ay_gain(Run("", run.t, run.steer, getattr(run, channel), run.r, run.vx))
         return None if isinstance(g, str) else g
 
     g_y = gain("ay")
