@@ -96,7 +96,7 @@ def load_bag(path, vehicle) -> list[Run]:
         v = None if valid[a:b].all() else valid[a:b]
         run = Run(name=name, t=grid[a:b] - grid[a], steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"],
                   ax=cut["ax"], meta={"source": where, "format": "ros", "fs": rate, "notes": list(notes) if k == 0
-                                      else [], "sensor_chain": sensor_chain.from_vehicle(vehicle),
+                                      else [], "sensor_chain": sensor_chain.from_vehicle(vehicle, sensor_chain.ROS_NONE),
                                       "topics": dict(parts),
                                       # the stamp [ns] of the run's t = 0, to line it up with other data
                                       "stamp0_ns": origin + int(round(grid[a] * 1e9))}, valid=v)
