@@ -13,7 +13,7 @@ from host.mcap_scan import holds_a_log
 from host import units
 from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
-from stid.ros import bag as ros_bag
+from stid.ros import bag as ros_bag, topic_files
 from stid.run import Run
 from stid.vehicle_file import Vehicle, default_vehicle
 
@@ -77,13 +77,15 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path} does not exist")
-    if ros_bag.kind_of(path):  # told by content: a ROS 2 MCAP shares its magic with a stid-log one
+    topic_csvs = path.is_dir() and vehicle is not None and topic_files.names_files(vehicle.ros)
+    if ros_bag.kind_of(path) or topic_csvs:  # told by content: a ROS 2 MCAP shares its magic with a stid-log one
         from stid.ros.to_run import load_bag
 
         return load_bag(path, vehicle)
     if path.is_dir():
         raise InputError(f"{path} is a directory (and not a ROS 2 bag: no metadata.yaml); give the run files "
-                         "(RUN.mcap, RUN.bag or RUN.csv)")
+                         "(RUN.mcap, RUN.bag or RUN.csv), or for one CSV per topic name them in the vehicle file's "
+                         "[ros] (docs/ros.md)")
     if path.stat().st_size == 0:
         raise InputError(f"{path} is empty")
     if holds_a_log(path):

@@ -21,7 +21,11 @@ from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
 from stid.run import Run
 
 G = 9.81
-MAX_FILLED_GAP_S = 0.1  # as stid.load: a longer silence on any topic cuts the run
+# A sensor topic's silence is marked not measured (left out of every cost, the model running
+# through it on the known command); a longer one cuts the run: after 0.5 s (several yaw time
+# constants) the car's state is forgotten anyway. The command topic's silences cut nothing:
+# the servo holds its last command until the next arrives.
+SENSOR_CUT_S = 0.5
 MIN_SAMPLES = 20
 GAP_PERIODS = 2.5  # a step this many median periods long lost messages
 
@@ -31,7 +35,7 @@ def load_bag(path, vehicle) -> list[Run]:
     where = str(path)
     table = vehicle.ros if vehicle is not None else {}
     st = vehicle.raw.get("steering", {}) if vehicle is not None else {}
-    with Bag(path) as bag:
+    with _open(path, table) as bag:
         choice = topic_map.choose(bag.topics, table, "gain" in st, where, bag.listing())
         parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
         wanted = {}
@@ -70,6 +74,7 @@ def load_bag(path, vehicle) -> list[Run]:
     od = cols[choice.odometry]
     od_t = times[choice.odometry]
     sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
+    _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
     steer_cols = cols[choice.steering]
     st_t = times[choice.steering]
     raw_steer = steer_cols["drive.steering_angle"] if choice.steering_type == ACKERMANN else steer_cols["data"]
@@ -85,10 +90,15 @@ def load_bag(path, vehicle) -> list[Run]:
         steer = held
     sig["steer"] = steer
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
-    valid = _measured(grid, times, rate)
+    sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
+    valid = _measured(grid, sensors)
     notes.insert(0, _grid_note(parts, times, counts, rate, grid, t0, t1, choice))
+    quiet = np.diff(st_t) > SENSOR_CUT_S
+    if quiet.any():
+        notes.append(f"{choice.steering} was silent {int(quiet.sum())} time(s), up to {np.diff(st_t).max():.1f} s: "
+                     "the servo holds its last command, so the command is held there too")
     runs = []
-    for k, (a, b) in enumerate(_pieces(grid, times)):
+    for k, (a, b) in enumerate(_pieces(grid, sensors)):
         if b - a < MIN_SAMPLES:
             continue
         name = path.name if k == 0 else f"{path.name}#{k + 1}"
@@ -103,7 +113,7 @@ def load_bag(path, vehicle) -> list[Run]:
         runs.append(run)
     if not runs:
         raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
-                         f"{MAX_FILLED_GAP_S:g} s on some topic")
+                         f"{SENSOR_CUT_S:g} s in the IMU or the odometry")
     for run in runs:
         _gyro_zero(run)
         try:
@@ -114,6 +124,15 @@ def load_bag(path, vehicle) -> list[Run]:
         if any("could not be checked" in w for w in run.meta.get("warnings", [])):
             _check_turned(run, table, where)
     return runs
+
+
+def _open(path, table):
+    """A bag, or a directory of per-topic CSVs that the [ros] table names."""
+    from stid.ros import topic_files
+
+    if path.is_dir() and not (path / "metadata.yaml").exists() and topic_files.names_files(table):
+        return topic_files.TopicFiles(path, table)
+    return Bag(path)
 
 
 def _origin(times) -> float:
@@ -214,6 +233,31 @@ def _check_turned(run, table, where) -> None:
                      f"about z from the axes {declared}; set in the vehicle file's [ros]: imu_axes = [{axes}]")
 
 
+TILT_NOTE_DEG = 1.0  # g sin(1 deg) = 0.17 m/s^2 on ay: worth a line in the vehicle file
+
+
+def _tilt(acc, vx, rate, vehicle, notes) -> None:
+    """The IMU's tilt from gravity while the car stands still: said with the [sensors] lines
+    that undo it (as ``stid calibrate`` writes them for a stid-log), when none are declared."""
+    from stid import segments
+    from stid.calibrate import _mounting
+
+    sensors = vehicle.sensors if vehicle is not None else {}
+    still = segments.still_mask(vx, rate)
+    if "mount_roll" in sensors or "mount_pitch" in sensors or still.sum() < 0.5 * rate:
+        return
+    g = acc[:, still].mean(axis=1)
+    if abs(np.linalg.norm(g) - G) > 0.2 * G:
+        return  # gravity removed (or not only gravity): nothing to tell the tilt by
+    tilt = np.degrees(np.arctan2(np.hypot(g[0], g[1]), g[2]))
+    if tilt < TILT_NOTE_DEG:
+        return
+    roll, pitch = _mounting(g)
+    notes.append(f"the IMU sits tilted {tilt:.1f} deg at rest (ay {g[1]:+.2f}, ax {g[0]:+.2f} m/s^2 of gravity); "
+                 f"to undo it, add to the vehicle file's [sensors]: mount_roll = {roll:.4f} and mount_pitch = "
+                 f"{pitch:.4f} (rad)")
+
+
 def _forward_speed(od, notes, topic) -> np.ndarray:
     vx = od["twist.twist.linear.x"]
     vy = od["twist.twist.linear.y"]
@@ -235,8 +279,8 @@ def _odometry_yaw(od, od_t, imu_t, imu_r, choice, notes) -> None:
         notes.append(f"{choice.odometry}'s yaw rate has the opposite sign to the IMU's (not used: r is the gyro's)")
 
 
-def _measured(grid, times, rate) -> np.ndarray:
-    """False at grid points inside a gap of some topic (lost messages): held, not measured."""
+def _measured(grid, times) -> np.ndarray:
+    """False at grid points inside a gap of some sensor topic (lost messages): held, not measured."""
     ok = np.ones(len(grid), bool)
     for t in times.values():
         dt = np.diff(t)
@@ -247,25 +291,17 @@ def _measured(grid, times, rate) -> np.ndarray:
 
 
 def _pieces(grid, times):
-    """Cut where any topic is silent for more than MAX_FILLED_GAP_S."""
-    cuts = set()
-    for t in times.values():
-        for k in np.flatnonzero(np.diff(t) > MAX_FILLED_GAP_S):
-            a, b = np.searchsorted(grid, [t[k], t[k + 1]])
-            cuts.update((int(a), int(b)))
-    edges = sorted({0, len(grid), *cuts})
-    pieces = list(zip(edges[:-1], edges[1:]))
-    # the stretches inside a gap are not pieces
-    return [(a, b) for a, b in pieces if not any(
-        np.any(np.diff(t) > MAX_FILLED_GAP_S) and _inside_gap(grid[a], grid[b - 1], t) for t in times.values())]
-
-
-def _inside_gap(g0, g1, t) -> bool:
-    dt = np.diff(t)
-    for k in np.flatnonzero(dt > MAX_FILLED_GAP_S):
-        if g0 >= t[k] and g1 <= t[k + 1]:
-            return True
-    return False
+    """The stretches between sensor silences longer than SENSOR_CUT_S (grid index ranges)."""
+    gaps = sorted((t[k], t[k + 1]) for t in times.values() for k in np.flatnonzero(np.diff(t) > SENSOR_CUT_S))
+    pieces, a = [], 0
+    for lo, hi in gaps:
+        b = int(np.searchsorted(grid, lo, side="right"))
+        if b > a:
+            pieces.append((a, b))
+        a = max(a, int(np.searchsorted(grid, hi, side="left")))
+    if a < len(grid):
+        pieces.append((a, len(grid)))
+    return pieces
 
 
 def _grid_note(parts, times, counts, rate, grid, t0, t1, choice) -> str:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from stid.errors import InputError
 from stid.ros.message_types import ACKERMANN, FLOAT64, IMU, ODOMETRY
 
-KEYS = ("imu", "odometry", "steering", "imu_axes", "accel_unit", "gyro_unit", "stamps", "rate_hz")
+KEYS = ("imu", "odometry", "steering", "imu_axes", "accel_unit", "gyro_unit", "stamps", "rate_hz", "fields")
 TOPIC_KEYS = ("imu", "odometry", "steering")
 UNITS = {"accel_unit": ("m/s^2", "g"), "gyro_unit": ("rad/s", "deg/s"), "stamps": ("header", "receive")}
 AXES = ("x", "y", "z", "-x", "-y", "-z")
@@ -65,6 +65,24 @@ def check_table(table: dict, where: str) -> None:
                 raise InputError(f"{where}: [ros] rate_hz must be a positive number [Hz], got {value!r}")
         elif key == "imu_axes":
             axes_matrix(value, where)
+        elif key == "fields":
+            _check_fields(value, where)
+
+
+def _check_fields(fields, where) -> None:
+    """[ros.fields] (topic CSVs, stid.ros.topic_files): message field -> column or expression."""
+    from stid.ros.message_types import FIELDS
+    from stid.vehicle_file import _unknown
+
+    known = ["stamp"] + sorted({f for fs in FIELDS.values() for f in fs if not f.startswith("header.")})
+    if not isinstance(fields, dict):
+        raise InputError(f"{where}: [ros] fields must be a table ([ros.fields]), got {fields!r}")
+    for key, value in fields.items():
+        if key not in known:
+            raise _unknown(where, "field", key, known, "[ros.fields]")
+        if not isinstance(value, str) or not value.strip():
+            raise InputError(f"{where}: [ros.fields] \"{key}\" must be a column name or expression in quotes, "
+                             f"got {value!r}")
 
 
 def axes_matrix(axes, where: str = "vehicle file"):
