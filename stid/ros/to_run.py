@@ -34,96 +34,107 @@ def load_bag(path, vehicle) -> list[Run]:
     path = Path(path)
     where = str(path)
     table = vehicle.ros if vehicle is not None else {}
-    st = vehicle.raw.get("steering", {}) if vehicle is not None else {}
-    with _open(path, table) as bag:
-        choice = topic_map.choose(bag.topics, table, "gain" in st, where, bag.listing())
-        parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
-        wanted = {}
-        for topic in parts.values():
-            wanted.setdefault(topic, FIELDS[bag.topics[topic].msgtype])
-        cols = bag.read(wanted)
-        counts = {t: bag.topics[t].count for t in wanted}
+    choice, cols = _read(path, table, vehicle, where)
     notes = list(choice.notes)
-    use_header = table.get("stamps", "header") == "header"
-    stamps_ns = {}
-    for part, topic in parts.items():
-        if not counts[topic] or len(cols[topic]["t_log"]) == 0:
-            raise InputError(f"{where}: the {topic_map.ROLE_WORDS[part]} topic {topic} holds no messages")
-        stamps_ns[topic] = _stamps(cols[topic], topic, use_header, notes, where)
+    parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
+    stamps_ns = {topic: _stamps(cols[topic], topic, table.get("stamps", "header") == "header", notes, where)
+                 for topic in parts.values()}
     # seconds from the first stamp: epoch nanoseconds as float64 would keep only ~0.2 us
     origin = min(int(t[0]) for t in stamps_ns.values())
     times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
-    t0 = max(times[t][0] for t in times)
-    t1 = min(times[t][-1] for t in times)
-    if t1 - t0 < MIN_SAMPLES * 0.005:
-        spans = ", ".join(f"{t} {(times[t][0] - _origin(times)) :.2f}-{(times[t][-1] - _origin(times)):.2f} s"
-                          for t in times)
-        raise InputError(f"{where}: the topics do not overlap in time ({spans}, from the bag's first stamp): a run "
-                         "needs the IMU, the odometry and the steering command at once")
-    imu_t = times[choice.imu]
     rate = float(table.get("rate_hz") or 0.0) or 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
-    # on the IMU's own instants where they are uniform: its samples then reach the grid as they are
-    t0 = float(imu_t[np.searchsorted(imu_t, t0 - 1e-9)])
-    grid = t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
-    imu = cols[choice.imu]
-    acc = np.vstack([imu["linear_acceleration." + a] for a in "xyz"])
-    gyro = np.vstack([imu["angular_velocity." + a] for a in "xyz"])
-    acc, gyro = _body_axes(acc, gyro, table, vehicle, where, notes)
-    sig = {"ax": np.interp(grid, imu_t, acc[0]), "ay": np.interp(grid, imu_t, acc[1]),
-           "r": np.interp(grid, imu_t, gyro[2])}
-    od = cols[choice.odometry]
-    od_t = times[choice.odometry]
-    sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
-    _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
-    steer_cols = cols[choice.steering]
-    st_t = times[choice.steering]
-    raw_steer = steer_cols["drive.steering_angle"] if choice.steering_type == ACKERMANN else steer_cols["data"]
-    # the servo holds each command until the next: held, not interpolated
-    held = raw_steer[np.clip(np.searchsorted(st_t, grid, side="right") - 1, 0, len(st_t) - 1)]
-    if choice.steering_type == FLOAT64:
-        from stid.steer_units import road_wheel_angle
-
-        steer, steer_notes = road_wheel_angle(held, sig["r"], sig["vx"], sig["ay"], rate, vehicle, where,
-                                               choice.steering)
-        notes += steer_notes
-    else:
-        steer = held
-    sig["steer"] = steer
-    _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
+    grid = _grid(times, choice.imu, rate, where)
+    sig = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
-    notes.insert(0, _grid_note(parts, times, counts, rate, grid, t0, t1, choice))
-    quiet = np.diff(st_t) > SENSOR_CUT_S
+    notes.insert(0, _grid_note(parts, times, rate, grid, choice))
+    quiet = np.diff(times[choice.steering]) > SENSOR_CUT_S
     if quiet.any():
-        notes.append(f"{choice.steering} was silent {int(quiet.sum())} time(s), up to {np.diff(st_t).max():.1f} s: "
-                     "the servo holds its last command, so the command is held there too")
+        notes.append(f"{choice.steering} was silent {int(quiet.sum())} time(s), up to "
+                     f"{np.diff(times[choice.steering]).max():.1f} s: the servo holds its last command, so the "
+                     "command is held there too")
     runs = []
     for k, (a, b) in enumerate(_pieces(grid, sensors)):
         if b - a < MIN_SAMPLES:
             continue
-        name = path.name if k == 0 else f"{path.name}#{k + 1}"
         cut = {key: v[a:b] for key, v in sig.items()}
-        v = None if valid[a:b].all() else valid[a:b]
-        run = Run(name=name, t=grid[a:b] - grid[a], steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"],
-                  ax=cut["ax"], meta={"source": where, "format": "ros", "fs": rate, "notes": list(notes) if k == 0
-                                      else [], "sensor_chain": sensor_chain.from_vehicle(vehicle, sensor_chain.ROS_NONE),
-                                      "topics": dict(parts),
-                                      # the stamp [ns] of the run's t = 0, to line it up with other data
-                                      "stamp0_ns": origin + int(round(grid[a] * 1e9))}, valid=v)
-        runs.append(run)
+        meta = {"source": where, "format": "ros", "fs": rate, "notes": list(notes) if not runs else [],
+                "sensor_chain": sensor_chain.from_vehicle(vehicle, sensor_chain.ROS_NONE), "topics": dict(parts),
+                # the stamp [ns] of the run's t = 0, to line it up with other data
+                "stamp0_ns": origin + int(round(grid[a] * 1e9))}
+        runs.append(Run(name=path.name if k == 0 else f"{path.name}#{k + 1}", t=grid[a:b] - grid[a],
+                        steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"], ax=cut["ax"], meta=meta,
+                        valid=None if valid[a:b].all() else valid[a:b]))
     if not runs:
         raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
                          f"{SENSOR_CUT_S:g} s in the IMU or the odometry")
     for run in runs:
         _gyro_zero(run)
-        try:
-            input_checks.check_kinematics(run, source="ros")
-        except InputError:
-            _check_turned(run, table, where)  # a better message, when that is what is wrong
-            raise
-        if any("could not be checked" in w for w in run.meta.get("warnings", [])):
-            _check_turned(run, table, where)
+        _check(run, table, where)
     return runs
+
+
+def _read(path, table, vehicle, where):
+    """The topic of each part, and the fields of those topics."""
+    servo_map = vehicle is not None and "gain" in vehicle.raw.get("steering", {})
+    with _open(path, table) as bag:
+        choice = topic_map.choose(bag.topics, table, servo_map, where, bag.listing())
+        wanted = {}
+        for part, topic in (("imu", choice.imu), ("odometry", choice.odometry), ("steering", choice.steering)):
+            if not bag.topics[topic].count:
+                raise InputError(f"{where}: the {topic_map.ROLE_WORDS[part]} topic {topic} holds no messages")
+            wanted.setdefault(topic, FIELDS[bag.topics[topic].msgtype])
+        return choice, bag.read(wanted)
+
+
+def _grid(times, imu, rate, where) -> np.ndarray:
+    """Uniform instants over the time every topic covers, on the IMU's own instants where
+    those are uniform (its samples then reach the grid as they are)."""
+    t0 = max(t[0] for t in times.values())
+    t1 = min(t[-1] for t in times.values())
+    if t1 - t0 < MIN_SAMPLES / rate:
+        spans = ", ".join(f"{topic} {t[0]:.2f}-{t[-1]:.2f} s" for topic, t in times.items())
+        raise InputError(f"{where}: the topics do not overlap in time ({spans}, from the bag's first stamp): a run "
+                         "needs the IMU, the odometry and the steering command at once")
+    imu_t = times[imu]
+    t0 = float(imu_t[np.searchsorted(imu_t, t0 - 1e-9)])
+    return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
+
+
+def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes) -> dict:
+    """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held."""
+    imu, imu_t = cols[choice.imu], times[choice.imu]
+    acc = np.vstack([imu["linear_acceleration." + a] for a in "xyz"])
+    gyro = np.vstack([imu["angular_velocity." + a] for a in "xyz"])
+    acc, gyro = _body_axes(acc, gyro, table, vehicle, where, notes)
+    sig = {"ax": np.interp(grid, imu_t, acc[0]), "ay": np.interp(grid, imu_t, acc[1]),
+           "r": np.interp(grid, imu_t, gyro[2])}
+    od, od_t = cols[choice.odometry], times[choice.odometry]
+    sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
+    _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
+    _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
+    st_t = times[choice.steering]
+    command = cols[choice.steering]["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
+    # the servo holds each command until the next: held, not interpolated
+    sig["steer"] = command[np.clip(np.searchsorted(st_t, grid, side="right") - 1, 0, len(st_t) - 1)]
+    if choice.steering_type == FLOAT64:
+        from stid.steer_units import road_wheel_angle
+
+        sig["steer"], said = road_wheel_angle(sig["steer"], sig["r"], sig["vx"], sig["ay"], rate, vehicle, where,
+                                              choice.steering)
+        notes += said
+    return sig
+
+
+def _check(run, table, where) -> None:
+    """Units and signs against kinematics (stid.input_checks); an IMU turned 90 deg named."""
+    try:
+        input_checks.check_kinematics(run, source="ros")
+    except InputError:
+        _check_turned(run, table, where)  # a better message, when that is what is wrong
+        raise
+    if any("could not be checked" in w for w in run.meta.get("warnings", [])):
+        _check_turned(run, table, where)
 
 
 def _open(path, table):
@@ -133,10 +144,6 @@ def _open(path, table):
     if path.is_dir() and not (path / "metadata.yaml").exists() and topic_files.names_files(table):
         return topic_files.TopicFiles(path, table)
     return Bag(path)
-
-
-def _origin(times) -> float:
-    return min(t[0] for t in times.values())
 
 
 def _stamps(col, topic, use_header, notes, where) -> np.ndarray:
@@ -304,15 +311,14 @@ def _pieces(grid, times):
     return pieces
 
 
-def _grid_note(parts, times, counts, rate, grid, t0, t1, choice) -> str:
+def _grid_note(parts, times, rate, grid, choice) -> str:
     rates = {t: 1.0 / float(np.median(np.diff(tt))) for t, tt in times.items()}
-    first = _origin(times)
     last = max(t[-1] for t in times.values())
     return (f"resampled to a uniform {rate:.1f} Hz grid: ay, ax, r from {parts['imu']} ({rates[parts['imu']]:.0f} Hz) "
             f"and vx from {parts['odometry']} ({rates[parts['odometry']]:.0f} Hz) interpolated linearly, steer from "
-            f"{parts['steering']} ({rates[parts['steering']]:.0f} Hz, {choice.steering_type.split('/')[-1]}) held (a command holds until the next); "
-            f"{t1 - t0:.1f} s where all three overlap ({t0 - first:.2f} s at the start and {last - t1:.2f} s at the "
-            "end left out)")
+            f"{parts['steering']} ({rates[parts['steering']]:.0f} Hz, {choice.steering_type.split('/')[-1]}) held (a "
+            f"command holds until the next); {grid[-1] - grid[0]:.1f} s where all three overlap ({grid[0]:.2f} s at "
+            f"the start and {last - grid[-1]:.2f} s at the end left out)")
 
 
 def _gyro_zero(run) -> None:
