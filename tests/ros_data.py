@@ -134,6 +134,7 @@ class Layout:
     servo: bool = False  # steer as the VESC's 0-1 servo command (std_msgs/Float64, no header)
     imu_to_body: tuple = ("x", "y", "z")  # the car's x, y, z as the IMU's signed axes ([ros] imu_axes)
     gravity: bool = True  # the accelerometer holds gravity (raw), or has it removed
+    tilt_roll_deg: float = 0.0  # the IMU's board rolled about the car's x axis
     accel_g: bool = False  # accelerometer in g, gyro in deg/s (the VESC driver's sensors/imu/raw)
     gyro_bias: float = 0.0  # rad/s
     odom_yaw_sign: float = 1.0  # the odometry's (unused) yaw rate, -1: opposite to the gyro
@@ -144,11 +145,15 @@ class Layout:
 
 
 def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
-    """Body-frame vectors (3, n) as the IMU mounted per ``imu_to_body`` reads them."""
+    """Body-frame vectors (3, n) as the IMU reads them: its board rolled by ``tilt_roll_deg``
+    about the car's x axis (the board's axes are the car's turned by Rx: it reads Rx^T v),
+    its chip turned on the board per ``imu_to_body``."""
+    c, s = math.cos(math.radians(layout.tilt_roll_deg)), math.sin(math.radians(layout.tilt_roll_deg))
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
     m = np.zeros((3, 3))
     for row, a in enumerate(layout.imu_to_body):
         m[row, "xyz".index(a[-1])] = -1.0 if a.startswith("-") else 1.0
-    return m.T @ body  # body = m @ imu, m orthogonal
+    return m.T @ (rx.T @ body)  # board = m @ chip, m orthogonal
 
 
 def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = False) -> Path:

@@ -8,6 +8,7 @@ command held, the odometry's speed interpolated: what a careful hand-written con
 would give.
 """
 
+import math
 import subprocess
 from pathlib import Path
 
@@ -355,3 +356,24 @@ def test_public_real_log_in_its_original_format(tmp_path):
         assert abs(va - vb) < 0.1 * se, f"{name}: {va:.4g} from the original files, {vb:.4g} from the converter's CSV"
     for out in ("ay", "r"):
         assert a.fit[out] == pytest.approx(b.fit[out], abs=1.0)
+
+
+def test_a_tilted_imu_is_said_and_calibrated_away(drive, contract, tmp_path):
+    """An IMU board rolled 3 deg: the loader says the tilt with the lines that undo it;
+    `stid calibrate` on the bag writes them; the bag then holds the contract's ay again."""
+    from stid.calibrate import calibrate_cli
+
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(tilt_roll_deg=3.0))
+    car = rd.vehicle_toml(tmp_path / "car.toml")
+    (tilted,) = load_file(bag, load_vehicle(car))
+    note = next(n for n in tilted.meta["notes"] if "sits tilted" in n)
+    roll = float(note.split("mount_roll = ")[1].split()[0])
+    pitch = float(note.split("mount_pitch = ")[1].split()[0])
+    assert "tilted 3.0 deg" in note
+    assert abs(roll) == pytest.approx(math.radians(3.0), abs=1e-3) and pitch == pytest.approx(0.0, abs=1e-3)
+    # ay reads g sin(3 deg) = 0.51 m/s^2 of gravity until it is undone
+    assert np.mean(tilted.ay[:400]) == pytest.approx(rd.G * math.sin(math.radians(3.0)), abs=0.02)
+    assert calibrate_cli(str(bag), str(car)) == 0
+    (run,) = load_file(bag, load_vehicle(car))
+    _, ref = _on_contract_times(run, contract, drive)
+    assert np.max(np.abs(run.ay - ref["ay"])[5:-5]) < 0.01  # the tilt from 600 still samples of noise 0.05

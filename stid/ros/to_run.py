@@ -44,7 +44,7 @@ def load_bag(path, vehicle) -> list[Run]:
     times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
     rate = float(table.get("rate_hz") or 0.0) or 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
     grid = _grid(times, choice.imu, rate, where)
-    sig = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes)
+    sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
     notes.insert(0, _grid_note(parts, times, rate, grid, choice))
@@ -61,7 +61,8 @@ def load_bag(path, vehicle) -> list[Run]:
         meta = {"source": where, "format": "ros", "fs": rate, "notes": list(notes) if not runs else [],
                 "sensor_chain": sensor_chain.from_vehicle(vehicle, sensor_chain.ROS_NONE), "topics": dict(parts),
                 # the stamp [ns] of the run's t = 0, to line it up with other data
-                "stamp0_ns": origin + int(round(grid[a] * 1e9))}
+                "stamp0_ns": origin + int(round(grid[a] * 1e9)),
+                "imu_tilt": tilt}  # mount_roll, mount_pitch [rad] from the stand-still (stid calibrate)
         runs.append(Run(name=path.name if k == 0 else f"{path.name}#{k + 1}", t=grid[a:b] - grid[a],
                         steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"], ax=cut["ax"], meta=meta,
                         valid=None if valid[a:b].all() else valid[a:b]))
@@ -101,8 +102,9 @@ def _grid(times, imu, rate, where) -> np.ndarray:
     return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
 
 
-def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes) -> dict:
-    """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held."""
+def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes):
+    """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held. And the IMU's
+    tilt at rest (``_tilt``)."""
     imu, imu_t = cols[choice.imu], times[choice.imu]
     acc = np.vstack([imu["linear_acceleration." + a] for a in "xyz"])
     gyro = np.vstack([imu["angular_velocity." + a] for a in "xyz"])
@@ -111,7 +113,7 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes) -> d
            "r": np.interp(grid, imu_t, gyro[2])}
     od, od_t = cols[choice.odometry], times[choice.odometry]
     sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
-    _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
+    tilt = _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
     st_t = times[choice.steering]
     command = cols[choice.steering]["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
@@ -123,7 +125,7 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes) -> d
         sig["steer"], said = road_wheel_angle(sig["steer"], sig["r"], sig["vx"], sig["ay"], rate, vehicle, where,
                                               choice.steering)
         notes += said
-    return sig
+    return sig, tilt
 
 
 def _check(run, table, where) -> None:
@@ -243,26 +245,29 @@ def _check_turned(run, table, where) -> None:
 TILT_NOTE_DEG = 1.0  # g sin(1 deg) = 0.17 m/s^2 on ay: worth a line in the vehicle file
 
 
-def _tilt(acc, vx, rate, vehicle, notes) -> None:
-    """The IMU's tilt from gravity while the car stands still: said with the [sensors] lines
-    that undo it (as ``stid calibrate`` writes them for a stid-log), when none are declared."""
+def _tilt(acc, vx, rate, vehicle, notes):
+    """The IMU's tilt from gravity while the car stands still, ``{"mount_roll", "mount_pitch"}``
+    [rad] as ``stid calibrate`` writes them (None without a stand-still or gravity). Said with
+    the [sensors] lines that undo it when none are declared."""
     from stid import segments
     from stid.calibrate import _mounting
 
-    sensors = vehicle.sensors if vehicle is not None else {}
     still = segments.still_mask(vx, rate)
-    if "mount_roll" in sensors or "mount_pitch" in sensors or still.sum() < 0.5 * rate:
-        return
+    if still.sum() < 0.5 * rate:
+        return None
     g = acc[:, still].mean(axis=1)
     if abs(np.linalg.norm(g) - G) > 0.2 * G:
-        return  # gravity removed (or not only gravity): nothing to tell the tilt by
-    tilt = np.degrees(np.arctan2(np.hypot(g[0], g[1]), g[2]))
-    if tilt < TILT_NOTE_DEG:
-        return
+        return None  # gravity removed (or not only gravity): nothing to tell the tilt by
     roll, pitch = _mounting(g)
+    found = {"mount_roll": roll, "mount_pitch": pitch}
+    sensors = vehicle.sensors if vehicle is not None else {}
+    tilt = np.degrees(np.arctan2(np.hypot(g[0], g[1]), g[2]))
+    if "mount_roll" in sensors or "mount_pitch" in sensors or tilt < TILT_NOTE_DEG:
+        return found
     notes.append(f"the IMU sits tilted {tilt:.1f} deg at rest (ay {g[1]:+.2f}, ax {g[0]:+.2f} m/s^2 of gravity); "
                  f"to undo it, add to the vehicle file's [sensors]: mount_roll = {roll:.4f} and mount_pitch = "
-                 f"{pitch:.4f} (rad)")
+                 f"{pitch:.4f} (rad), or run 'stid calibrate' on it")
+    return found
 
 
 def _forward_speed(od, notes, topic) -> np.ndarray:
