@@ -9,7 +9,8 @@ how it maps to the road-wheel angle:
 
 - while the car drives straight its road wheels point straight: a road-wheel angle is
   within a trim of ~0 there (a few degrees), a 0-1 command sits near 0.5, a pulse near
-  1500 us;
+  1500 us; and a road-wheel angle turns both ways (its column crosses 0), a command with
+  an offset (0-1, percent, ADC counts) need not;
 - no RC car steers its road wheels beyond ~35 deg (0.6 rad; F1TENTH cars: 0.42 rad), so a
   column centred at 0 that reaches further is a +-1 command.
 
@@ -67,9 +68,11 @@ def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer")
                 f"[steering] (centre {vehicle.steer_center_us:g} us, {vehicle.steer_us_per_rad:g} us per rad)"]
         raise _refused(where, what, f"a servo pulse width in us ({lo:.0f} to {hi:.0f} us, {centre:.0f} us when the "
                                     "car drives straight)", x, r, vx, ay, fs, vehicle, pulse=True)
-    if STRAIGHT_TRIM_RAD < abs(centre) <= 1.0 and (lo >= 0.0 or hi <= 0.0):
+    one_signed = lo >= 0.0 or hi <= 0.0  # a road-wheel angle turns both ways: it crosses 0
+    if abs(centre) > STRAIGHT_TRIM_RAD and one_signed:
         sign = "negated " if centre < 0 else ""
-        raise _refused(where, what, f"a {sign}servo command in 0-1 units ({lo:.2f} to {hi:.2f}, {centre:.2f} when the "
+        unit = "0-1 units" if max(abs(lo), abs(hi)) <= 1.0 else "units with an offset (percent? counts?)"
+        raise _refused(where, what, f"a {sign}servo command in {unit} ({lo:.3g} to {hi:.3g}, {centre:.3g} when the "
                                     "car drives straight)", x, r, vx, ay, fs, vehicle)
     if STRAIGHT_TRIM_RAD < abs(centre) <= 1.0:
         raise InputError(f"{where}: '{what}' is {centre:+.2f} while the car drives straight: not a road-wheel angle "

@@ -119,6 +119,9 @@ SERVO = {
             "[steering]\noffset = 0.0\ngain = 6.666666666666667\n"),
     "pulse us": (lambda a: 1500.0 + 1145.9 * a, "a servo pulse width in us",
                  "[steering]\ncenter_us = 1500.0\nus_per_rad = 1145.9\n"),
+    # a percent command (0-100, 50 straight ahead): it used to be told "degrees"
+    "percent": (lambda a: 50.0 + 120.0 * a, "a servo command in units with an offset",
+                "[steering]\noffset = 50.0\ngain = 120.0\n"),
 }
 
 
