@@ -26,28 +26,6 @@ def _ros_data():
     return mod
 
 
-def as_libmcap_writes(src: Path, dst: Path) -> None:
-    """The same records, in zstd-compressed chunks of 768 KiB with CRCs (McapWriterOptions'
-    defaults, which rosbag2_storage_mcap uses)."""
-    from mcap.reader import make_reader
-    from mcap.writer import CompressionType, Writer
-
-    with open(src, "rb") as f, open(dst, "wb") as out:
-        reader = make_reader(f)
-        header = reader.get_header()
-        w = Writer(out, chunk_size=768 * 1024, compression=CompressionType.ZSTD)
-        w.start(profile=header.profile, library="libmcap 1.4.0 (as rosbag2 records)")
-        schemas, channels = {}, {}
-        for schema, channel, msg in reader.iter_messages(log_time_order=False):
-            if schema.id not in schemas:
-                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
-                                                          schemas[schema.id], channel.metadata)
-            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
-        w.finish()
-
-
 def make_bag(data_dir: Path, minutes: float) -> tuple[Path, Path]:
     """The bag and its vehicle file (kept in ``data_dir`` between runs)."""
     rd = _ros_data()
@@ -61,7 +39,7 @@ def make_bag(data_dir: Path, minutes: float) -> tuple[Path, Path]:
 
             shutil.rmtree(raw)
         rd.write_bag(rd.drive(duration=minutes * 60.0), raw, rd.Layout())
-        as_libmcap_writes(rd.ros2_mcap(raw), bag)
+        rd.as_libmcap_writes(rd.ros2_mcap(raw), bag)
     return bag, car
 
 

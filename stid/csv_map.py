@@ -76,6 +76,19 @@ def delimiter(path: Path) -> tuple[str, str]:
     return sep, decimal
 
 
+def read(path: Path, what: str = "not a readable CSV"):
+    """``(frame, sep, decimal)``: the file read with its own delimiter, names stripped."""
+    import pandas as pd  # only CSV needs it (and it costs a quarter second to import)
+
+    sep, decimal = delimiter(path)
+    try:
+        frame = pd.read_csv(path, sep=sep, decimal=decimal, engine="python" if len(sep) > 1 else "c")
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
+        raise InputError(f"{path} is {what} ({str(e).strip()})") from None
+    frame.columns = [str(c).strip() for c in frame.columns]
+    return frame, sep, decimal
+
+
 def describe(sep: str, decimal: str) -> str:
     return f"{_NAMES[sep]}-separated" + (", decimal commas" if decimal == "," else "")
 

@@ -106,17 +106,12 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
 def load_csv(path, vehicle: Vehicle | None = None) -> Run:
     """A CSV run: the import contract's columns, or the vehicle file's ``[csv]`` map of them
     (stid.csv_map); a steering column in servo units through its ``[steering]`` map."""
-    import pandas as pd  # only CSV needs it (and it costs a quarter second to import)
+    import pandas as pd
 
     from stid import csv_map
 
     path = Path(path)
-    sep, decimal = csv_map.delimiter(path)
-    try:
-        df = pd.read_csv(path, sep=sep, decimal=decimal, engine="python" if len(sep) > 1 else "c")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"{path} is neither an MCAP file nor a readable CSV ({str(e).strip()})") from None
-    df.columns = [str(c).strip() for c in df.columns]
+    df, sep, decimal = csv_map.read(path, "neither an MCAP file nor a readable CSV")
     table = vehicle.csv if vehicle is not None else {}
     df = csv_map.apply(df, table, str(path))
     missing = [c for c in REQUIRED if c not in df.columns]

@@ -257,4 +257,25 @@ def imu_axes_value(layout: Layout) -> str:
     return "[" + ", ".join(f'"{a}"' for a in layout.imu_to_body) + "]"
 
 
-DEG = math.pi / 180
+
+def as_libmcap_writes(src: Path, dst: Path, chunk_size: int = 768 * 1024) -> Path:
+    """The bag's records re-chunked as ``ros2 bag record -s mcap`` writes them (libmcap's
+    McapWriterOptions defaults: zstd chunks of 768 KiB with CRCs, a message index after each),
+    by the mcap library. rosbags' own writer leaves chunks uncompressed and without CRCs."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        reader = make_reader(f)
+        w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        w.start(profile=reader.get_header().profile, library="libmcap-like (stid tests)")
+        schemas, channels = {}, {}
+        for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas[schema.id], channel.metadata)
+            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        w.finish()
+    return dst

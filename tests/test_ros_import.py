@@ -222,28 +222,6 @@ def test_ros_table_keys_are_checked(tmp_path):
 
 # -- the fast MCAP reader against rosbags ---------------------------------------------------
 
-def _libmcap_copy(src, dst, chunk_size=64 * 1024):
-    """The bag re-chunked as ``ros2 bag record`` writes (libmcap's defaults: zstd chunks with
-    CRCs, a message index after each), by the mcap library."""
-    from mcap.reader import make_reader
-    from mcap.writer import CompressionType, Writer
-
-    with open(src, "rb") as f, open(dst, "wb") as out:
-        reader = make_reader(f)
-        w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        w.start(profile=reader.get_header().profile, library="test")
-        schemas, channels = {}, {}
-        for schema, channel, msg in reader.iter_messages(log_time_order=False):
-            if schema.id not in schemas:
-                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
-                                                          schemas[schema.id], channel.metadata)
-            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
-        w.finish()
-    return dst
-
-
 def _damage_first_index(path):
     """Point the first message index entry of the file one byte off (outside any CRC)."""
     import struct
@@ -264,7 +242,8 @@ def test_fast_mcap_reader_gives_what_rosbags_gives(drive, tmp_path, monkeypatch)
     from stid.ros import mcap_blocks
 
     vehicle = _vehicle(tmp_path)
-    libmcap = _libmcap_copy(rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run", rd.Layout())), tmp_path / "rec.mcap")
+    libmcap = rd.as_libmcap_writes(rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run", rd.Layout())),
+                                   tmp_path / "rec.mcap", chunk_size=64 * 1024)
     topics = ["/sensors/imu/raw", "/odom", "/ackermann_drive"]
     assert mcap_blocks.read_topics(libmcap, topics) is not None  # the fast path is the one taken
     (fast,) = load_file(libmcap, vehicle)

@@ -118,17 +118,9 @@ class TopicFiles:
 
 
 def _read(file: Path):
-    import pandas as pd
-
     from stid import csv_map
 
-    sep, decimal = csv_map.delimiter(file)
-    try:
-        frame = pd.read_csv(file, sep=sep, decimal=decimal, engine="python" if len(sep) > 1 else "c")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"{file} is not a readable CSV ({str(e).strip()})") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
-    return frame
+    return csv_map.read(file)[0]
 
 
 def _numbers(series, what, where) -> np.ndarray:
