@@ -156,8 +156,9 @@ def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
     return m.T @ (rx.T @ body)  # board = m @ chip, m orthogonal
 
 
-def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = False) -> Path:
-    """The drive as ``ros2 bag record`` (MCAP storage) or ``rosbag record`` would hold it."""
+def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = False, sqlite: bool = False) -> Path:
+    """The drive as ``ros2 bag record`` (MCAP storage, or SQLite with ``sqlite``) or ``rosbag
+    record`` would hold it."""
     ts = typestore(ros1)
     T = ts.types["builtin_interfaces/msg/Time"]
     H = ts.types["std_msgs/msg/Header"]
@@ -226,7 +227,7 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
         w = Writer(path)
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
-        w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        w = Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP)
     with w:
         conns = {}
         for _, topic, msgtype, _m in events:

@@ -96,6 +96,29 @@ def test_bag_holds_the_contract_data(name, ros1, drive, contract, tmp_path):
         assert "gyro zero +0.02" in notes
 
 
+def test_ros2_sqlite_storage(drive, contract, tmp_path):
+    """ROS 2's storage before Iron (SQLite): read by rosbags as it is."""
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(), sqlite=True)
+    assert list(bag.glob("*.db3"))
+    (run,) = load_file(bag, _vehicle(tmp_path))
+    _same_data(run, contract, drive)
+
+
+def test_receive_times_when_header_stamps_go_back(drive, contract, tmp_path):
+    """The error for a stamp that goes back names [ros] stamps = "receive"; with it, the bag's
+    receive times (here 1.3 ms after each measurement) time the run."""
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(backwards_at=3000))
+    with pytest.raises(InputError, match='stamps = "receive"'):
+        load_file(bag, _vehicle(tmp_path))
+    (run,) = load_file(bag, _vehicle(tmp_path, '[ros]\nstamps = "receive"\n'))
+    _, ref = _on_contract_times(run, contract, drive)
+    shifted = run.meta["stamp0_ns"] - rd.EPOCH_NS - 1_300_000  # the receive delay, taken off
+    t_true = shifted * 1e-9 + run.t
+    t_csv = drive.t[drive.imu_k][0] + contract.t
+    inside = (t_true > t_csv[1]) & (t_true < t_csv[-2])
+    assert np.max(np.abs(run.ay[inside] - np.interp(t_true, t_csv, contract.ay)[inside])) < 1e-6
+
+
 def test_rates_differ_and_jitter(tmp_path):
     """IMU 100 Hz, odometry 33 Hz, command 50 Hz, none on the others' instants."""
     d = rd.drive(duration=SECONDS, imu_hz=100, odom_hz=33)

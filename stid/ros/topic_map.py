@@ -11,6 +11,9 @@ accel_unit = "m/s^2"           # or "g" (the VESC driver's sensors/imu/raw)
 gyro_unit = "rad/s"            # or "deg/s" (the VESC driver's sensors/imu/raw)
 stamps = "header"              # or "receive": time messages by the bag's receive times
 rate_hz = 100.0                # the run's grid; the IMU's own rate when not given
+
+[ros.fields]                   # one CSV per topic (stid.ros.topic_files): field = column
+stamp = "s + ns * 1e-9"
 ```
 
 A topic left out is found by its type: the one topic of that type, or among several
