@@ -259,7 +259,7 @@ def imu_axes_value(layout: Layout) -> str:
 
 
 
-def as_libmcap_writes(src: Path, dst: Path, chunk_size: int = 768 * 1024) -> Path:
+def as_libmcap_writes(src: Path, dst: Path, chunk_size: int = 768 * 1024, profile: str | None = None) -> Path:
     """The bag's records re-chunked as ``ros2 bag record -s mcap`` writes them (libmcap's
     McapWriterOptions defaults: zstd chunks of 768 KiB with CRCs, a message index after each),
     by the mcap library. rosbags' own writer leaves chunks uncompressed and without CRCs."""
@@ -269,7 +269,8 @@ def as_libmcap_writes(src: Path, dst: Path, chunk_size: int = 768 * 1024) -> Pat
     with open(src, "rb") as f, open(dst, "wb") as out:
         reader = make_reader(f)
         w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
-        w.start(profile=reader.get_header().profile, library="libmcap-like (stid tests)")
+        w.start(profile=reader.get_header().profile if profile is None else profile,
+                library="libmcap-like (stid tests)")
         schemas, channels = {}, {}
         for schema, channel, msg in reader.iter_messages(log_time_order=False):
             if schema.id not in schemas:

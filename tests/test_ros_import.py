@@ -232,6 +232,11 @@ def test_a_bag_is_told_by_content_not_name(drive, tmp_path):
     mcap = rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run2", rd.Layout()))
     (run,) = load_file(mcap, _vehicle(tmp_path))
     assert run.meta["format"] == "ros"
+    # a writer that leaves the profile empty: told by its ros2msg schemas, and refused by rosbags
+    # in one line (not "not a stid log")
+    bare = rd.as_libmcap_writes(mcap, tmp_path / "bare.mcap", profile="")
+    with pytest.raises(InputError, match="bare.mcap is a ROS 2 bag that does not open: Profile is not ros2"):
+        load_file(bare, _vehicle(tmp_path))
 
 
 def test_ros_table_keys_are_checked(tmp_path):

@@ -50,16 +50,25 @@ def kind_of(path) -> str | None:
     return None
 
 
+ROS2_SCHEMAS = ("ros2msg", "ros2idl")
+
+
 def _mcap_is_ros2(path) -> bool:
     """The MCAP header's profile (the first record after the magic): ``ros2`` for rosbag2,
-    ``stid`` for stid-log. A file whose header does not parse is left to the stid-log
+    ``stid`` for stid-log; a writer that leaves the profile empty is told by its schemas
+    (``ros2msg``, ``ros2idl``). A file whose header does not parse is left to the stid-log
     reader, which says what is damaged."""
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
     try:
         with open(path, "rb") as f:
-            return make_reader(f).get_header().profile == "ros2"
+            reader = make_reader(f)
+            profile = reader.get_header().profile
+            if profile:
+                return profile == "ros2"
+            summary = reader.get_summary()
+            return summary is not None and any(s.encoding in ROS2_SCHEMAS for s in summary.schemas.values())
     except (McapError, OSError, ValueError, EOFError, UnicodeDecodeError):
         return False
 
