@@ -135,11 +135,11 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
     from stid.steer_units import road_wheel_angle
 
     fs = 1.0 / float(np.median(np.diff(cols["t"]))) if np.all(np.diff(cols["t"]) > 0) else 100.0
-    cols["steer"], steer_notes = road_wheel_angle(cols["steer"], cols["r"], cols["vx"], cols["ay"], fs, vehicle,
-                                                  str(path))
+    cols["steer"], steer_notes, steer_warnings = road_wheel_angle(cols["steer"], cols["r"], cols["vx"], cols["ay"],
+                                                                  fs, vehicle, str(path))
     _check_units(path, cols)
     t = cols.pop("t")
-    warnings = []
+    warnings = list(steer_warnings)
     dt = np.diff(t)
     if np.any(dt <= 0):
         raise InputError(f"{path}: time 't' is not increasing (row {int(np.flatnonzero(dt <= 0)[0]) + 2}); "

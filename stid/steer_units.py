@@ -11,8 +11,9 @@ how it maps to the road-wheel angle:
   within a trim of ~0 there (a few degrees), a 0-1 command sits near 0.5, a pulse near
   1500 us; and a road-wheel angle turns both ways (its column crosses 0), a command with
   an offset (0-1, percent, ADC counts) need not;
-- no RC car steers its road wheels beyond ~35 deg (0.6 rad; F1TENTH cars: 0.42 rad), so a
-  column centred at 0 that reaches further is a +-1 command.
+- few RC cars steer their road wheels beyond ~35 deg (0.6 rad; F1TENTH cars: 0.42 rad): a
+  column centred at 0 that reaches further is a +-1 command when the kinematics say so (the
+  angle the car turned by, L r / vx, against the column: 1 per rad for an angle).
 
 The map: ``[steering] offset, gain`` (command = offset + gain * angle, the VESC's
 ``steering_angle_to_servo_offset/gain``), or for pulse widths ``center_us, us_per_rad``
@@ -28,6 +29,7 @@ import numpy as np
 from stid.errors import InputError
 
 MAX_ROAD_WHEEL_RAD = 0.6
+RAD_GAIN = (1 / 1.5, 1.5)  # the map a column in rad shows from the kinematics (noise, servo and linkage)
 STRAIGHT_TRIM_RAD = 0.2  # 11 deg: far beyond any trim, far inside 0.5 of a 0-1 command
 PULSE_US = (500.0, 2600.0)  # RC servo pulse widths (1000-2000 us standard, 500-2500 extended)
 STRAIGHT_R = 0.05  # rad/s: below this yaw rate, moving, the car drives straight
@@ -37,7 +39,7 @@ LOWPASS_HZ = 1.0  # below a 1:10 car's yaw natural frequency (2-5 Hz): the slow,
 
 
 def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer"):
-    """``(angle [rad], notes)`` from the steering signal ``x`` (on the run's grid).
+    """``(angle [rad], notes, warnings)`` from the steering signal ``x`` (on the run's grid).
 
     Parameters
     ----------
@@ -58,14 +60,14 @@ def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer")
     if "gain" in st:
         return (x - float(st["offset"])) / float(st["gain"]), [
             f"{what} is a servo command, turned into the road-wheel angle by the vehicle file's [steering] "
-            f"(angle = (command - {st['offset']:g}) / {st['gain']:g})"]
+            f"(angle = (command - {st['offset']:g}) / {st['gain']:g})"], []
     centre = _straight_centre(x, r, vx)
     lo, hi = float(np.min(x)), float(np.max(x))
     if PULSE_US[0] <= centre <= PULSE_US[1]:
         if "center_us" in st or "us_per_rad" in st:
             return (x - vehicle.steer_center_us) / vehicle.steer_us_per_rad, [
                 f"{what} is a servo pulse width [us], turned into the road-wheel angle by the vehicle file's "
-                f"[steering] (centre {vehicle.steer_center_us:g} us, {vehicle.steer_us_per_rad:g} us per rad)"]
+                f"[steering] (centre {vehicle.steer_center_us:g} us, {vehicle.steer_us_per_rad:g} us per rad)"], []
         raise _refused(where, what, f"a servo pulse width in us ({lo:.0f} to {hi:.0f} us, {centre:.0f} us when the "
                                     "car drives straight)", x, r, vx, ay, fs, vehicle, pulse=True)
     one_signed = lo >= 0.0 or hi <= 0.0  # a road-wheel angle turns both ways: it crosses 0
@@ -80,10 +82,19 @@ def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer")
                          f"{centre:.3g} and gain = the command change per rad")
     peak = float(np.max(np.abs(x)))
     if MAX_ROAD_WHEEL_RAD < peak <= 1.0:
-        raise _refused(where, what, f"a servo command in +-1 units ({lo:.2f} to {hi:.2f}, beyond any RC car's "
-                                    f"steering lock of ~{MAX_ROAD_WHEEL_RAD:g} rad if it were radians)",
-                       x, r, vx, ay, fs, vehicle)
-    return x, []
+        # beyond most steering locks as radians; the kinematics decide: a road-wheel angle in rad
+        # has a map of gain ~1 once the understeer is apart, a +-1 command 1 / its full lock
+        est = estimate_map(x, r, vx, ay, vehicle.L, fs) if vehicle is not None else None
+        if est is not None and est[2] and not RAD_GAIN[0] <= abs(est[1]) <= RAD_GAIN[1]:
+            raise _refused(where, what, f"a servo command in +-1 units ({lo:.2f} to {hi:.2f}, beyond most RC cars' "
+                                        f"steering lock of ~{MAX_ROAD_WHEEL_RAD:g} rad if it were radians, and "
+                                        f"{abs(est[1]):.2f} per rad of the angle the car turned by)",
+                           x, r, vx, ay, fs, vehicle)
+        if est is None or not est[2]:
+            return x, [], [f"'{what}' reaches {peak:.2f} rad, beyond most RC cars' steering lock, and the run does "
+                           "not tell whether it is a +-1 command (its speed hardly varied): if it is, declare its "
+                           "map in [steering] (offset, gain)"]
+    return x, [], []
 
 
 def _straight_centre(x, r, vx) -> float:

@@ -44,7 +44,8 @@ def load_bag(path, vehicle) -> list[Run]:
     times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
     rate = float(table.get("rate_hz") or 0.0) or 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
     grid = _grid(times, choice.imu, rate, where)
-    sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes)
+    warnings = []
+    sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
     notes.insert(0, _grid_note(parts, times, rate, grid, choice))
@@ -70,6 +71,8 @@ def load_bag(path, vehicle) -> list[Run]:
         raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
                          f"{SENSOR_CUT_S:g} s in the IMU or the odometry")
     for run in runs:
+        for w in warnings:
+            run.warn(w)
         _gyro_zero(run)
         _check(run, table, where)
     return runs
@@ -102,7 +105,7 @@ def _grid(times, imu, rate, where) -> np.ndarray:
     return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
 
 
-def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes):
+def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings):
     """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held. And the IMU's
     tilt at rest (``_tilt``)."""
     imu, imu_t = cols[choice.imu], times[choice.imu]
@@ -122,9 +125,10 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes):
     if choice.steering_type == FLOAT64:
         from stid.steer_units import road_wheel_angle
 
-        sig["steer"], said = road_wheel_angle(sig["steer"], sig["r"], sig["vx"], sig["ay"], rate, vehicle, where,
-                                              choice.steering)
+        sig["steer"], said, warned = road_wheel_angle(sig["steer"], sig["r"], sig["vx"], sig["ay"], rate, vehicle,
+                                                      where, choice.steering)
         notes += said
+        warnings += warned
     return sig, tilt
 
 
