@@ -141,6 +141,7 @@ class Layout:
     stamp_offset_s: dict = field(default_factory=dict)  # topic -> shift of its header stamps
     drop_topics: tuple = ()
     backwards_at: int | None = None  # an IMU stamp that goes back
+    nan_at: int | None = None  # an IMU message whose ay is NaN (a driver's failed read)
     extra_topics: dict = field(default_factory=dict)  # topic -> msgtype, a few messages each
 
 
@@ -189,6 +190,8 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
     acc, gyro = _imu_axes(layout, body_acc), _imu_axes(layout, body_gyro)
     if layout.accel_g:
         acc, gyro = acc / G, np.degrees(gyro)
+    if layout.nan_at is not None:
+        acc[1, layout.nan_at] = np.nan
     for k, t in enumerate(t_imu):
         # a stamp that goes back (a clock step in the driver): received in its place all the same
         stamp_t = t - 0.012 if k == layout.backwards_at else t

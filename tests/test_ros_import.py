@@ -38,6 +38,12 @@ def contract(drive, tmp_path_factory):
     return run
 
 
+@pytest.fixture(scope="module")
+def plain_bag(drive, tmp_path_factory):
+    """The drive as the F1TENTH stack's ROS 2 bag (a directory), written once for the module."""
+    return rd.write_bag(drive, tmp_path_factory.mktemp("plain") / "run", rd.Layout())
+
+
 def _vehicle(tmp_path, extra=""):
     return load_vehicle(rd.vehicle_toml(tmp_path / "car.toml", extra))
 
@@ -81,9 +87,10 @@ CASES = [(n, False) for n in LAYOUTS] + [(n, True) for n in list(LAYOUTS)[:2]]
 
 
 @pytest.mark.parametrize("name,ros1", CASES, ids=[f"{n}-{'ROS 1' if r1 else 'ROS 2 MCAP'}" for n, r1 in CASES])
-def test_bag_holds_the_contract_data(name, ros1, drive, contract, tmp_path):
+def test_bag_holds_the_contract_data(name, ros1, drive, contract, plain_bag, tmp_path):
     layout, table = LAYOUTS[name]
-    bag = rd.write_bag(drive, tmp_path / ("run.bag" if ros1 else "run"), layout, ros1=ros1)
+    bag = plain_bag if name == "f1tenth defaults" and not ros1 else \
+        rd.write_bag(drive, tmp_path / ("run.bag" if ros1 else "run"), layout, ros1=ros1)
     (run,) = load_file(bag, _vehicle(tmp_path, table))
     assert run.meta["format"] == "ros"
     _same_data(run, contract, drive)
@@ -130,7 +137,7 @@ def test_rates_differ_and_jitter(tmp_path):
     assert "/odom (33 Hz)" in run.meta["notes"][0]
 
 
-def test_ros2_and_ros1_fit_as_the_contract_csv(drive, contract, tmp_path):
+def test_ros2_and_ros1_fit_as_the_contract_csv(drive, contract, plain_bag, tmp_path):
     """Same parameters from the bags (the rosbag2 directory, its .mcap file, a ROS 1 bag with
     the IMU turned) as from the contract CSV, within a tenth of their standard error; and
     near the truth of the physics that made them."""
@@ -138,7 +145,7 @@ def test_ros2_and_ros1_fit_as_the_contract_csv(drive, contract, tmp_path):
 
     vehicle = _vehicle(tmp_path)
     turned = _vehicle(tmp_path / "..", '[ros]\nimu_axes = ["y", "-x", "z"]\n')
-    bag2 = rd.write_bag(drive, tmp_path / "run2", rd.Layout())
+    bag2 = plain_bag
     bag1 = rd.write_bag(drive, tmp_path / "run1.bag", rd.Layout(imu_to_body=("y", "-x", "z")), ros1=True)
     ref = fit([contract], vehicle, "bicycle", "time", intervals="noise")
     for path, veh in ((bag2, vehicle), (rd.ros2_mcap(bag2), vehicle), (bag1, turned)):
@@ -183,6 +190,9 @@ BAD = {
                                  r'the IMU is turned 90 deg about z .*imu_axes = \["y", "-x", "z"\]'),
     "IMU upside down, not declared": (rd.Layout(imu_to_body=("x", "-y", "-z")), "",
                                       r"gravity is on the car's -z axis"),
+    "a NaN from the driver": (rd.Layout(nan_at=1234), "",
+                              r"/sensors/imu/raw has 1 message\(s\) whose linear_acceleration.y is not a number "
+                              r"\(NaN or inf; the first is message 1235 of 5000\)"),
     "VESC's g not declared": (rd.Layout(accel_g=True), "", r'that is gravity in g.*accel_unit = "g"'),
     "VESC's deg/s not declared": (rd.Layout(accel_g=True), '[ros]\naccel_unit = "g"\n',
                                   r"'r' looks like it is in deg/s; add gyro_unit = \"deg/s\""),
@@ -222,14 +232,14 @@ def test_cli_says_one_line_and_exits_non_zero(drive, tmp_path):
     assert len(lines) == 1 and "has no odometry topic (nav_msgs/msg/Odometry)" in lines[0], p.stderr
 
 
-def test_a_bag_is_told_by_content_not_name(drive, tmp_path):
+def test_a_bag_is_told_by_content_not_name(drive, plain_bag, tmp_path):
     """A ROS 1 bag named .mcap is not read as an MCAP; a ROS 2 MCAP is not read as a stid-log."""
     bag1 = rd.write_bag(drive, tmp_path / "run.bag", rd.Layout(), ros1=True)
     wrong = tmp_path / "run1.mcap"
     bag1.rename(wrong)
     with pytest.raises(InputError, match="holds a ROS 1 bag but is not named .bag"):
         load_file(wrong, _vehicle(tmp_path))
-    mcap = rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run2", rd.Layout()))
+    mcap = rd.ros2_mcap(plain_bag)
     (run,) = load_file(mcap, _vehicle(tmp_path))
     assert run.meta["format"] == "ros"
     # a writer that leaves the profile empty: told by its ros2msg schemas, and refused by rosbags
@@ -266,12 +276,11 @@ def _damage_first_index(path):
     path.write_bytes(bytes(buf))
 
 
-def test_fast_mcap_reader_gives_what_rosbags_gives(drive, tmp_path, monkeypatch):
+def test_fast_mcap_reader_gives_what_rosbags_gives(plain_bag, tmp_path, monkeypatch):
     from stid.ros import mcap_blocks
 
     vehicle = _vehicle(tmp_path)
-    libmcap = rd.as_libmcap_writes(rd.ros2_mcap(rd.write_bag(drive, tmp_path / "run", rd.Layout())),
-                                   tmp_path / "rec.mcap", chunk_size=64 * 1024)
+    libmcap = rd.as_libmcap_writes(rd.ros2_mcap(plain_bag), tmp_path / "rec.mcap", chunk_size=64 * 1024)
     topics = ["/sensors/imu/raw", "/odom", "/ackermann_drive"]
     assert mcap_blocks.read_topics(libmcap, topics) is not None  # the fast path is the one taken
     (fast,) = load_file(libmcap, vehicle)

@@ -88,7 +88,15 @@ def _read(path, table, vehicle, where):
             if not bag.topics[topic].count:
                 raise InputError(f"{where}: the {topic_map.ROLE_WORDS[part]} topic {topic} holds no messages")
             wanted.setdefault(topic, FIELDS[bag.topics[topic].msgtype])
-        return choice, bag.read(wanted)
+        cols = bag.read(wanted)
+    for topic, fields in wanted.items():
+        for f in fields:
+            bad = ~np.isfinite(cols[topic][f])
+            if bad.any():
+                raise InputError(f"{where}: {topic} has {int(bad.sum())} message(s) whose {f} is not a number (NaN or "
+                                 f"inf; the first is message {int(np.flatnonzero(bad)[0]) + 1} of {len(bad)}): a "
+                                 "driver that failed to read its sensor; cut those out of the bag")
+    return choice, cols
 
 
 def _grid(times, imu, rate, where) -> np.ndarray:
