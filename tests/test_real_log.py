@@ -1,11 +1,12 @@
-"""A real 1:10 car in the suite: FrictionMaps dataset 1 (tests/fixtures/real/frictionmaps_ds1,
-MIT), a teleoperated F1/10 car, 43 s at 30 Hz, 1-4.9 m/s.
+"""A real 1:10 car in the suite: three runs of the FrictionMaps F1/10 car
+(tests/fixtures/real/frictionmaps, MIT), teleoperated: ds1 43 s at 30 Hz, 1-4.9 m/s; ds3
+127 s at 23 Hz holding 1.3 m/s; ds4 113 s at 25 Hz, 1-4.5 m/s, driven 7 minutes after ds3.
 
 No test here knows a "right" stiffness: nobody measured one. The log carries its own
 checks instead, which stid never sees: the particle filter's heading from the lidar
-(``psi_pf``, independent of the IMU) and the car standing still at the end. What a command
-prints is judged against those and against the data's own numbers (speeds, durations),
-never against a tuned value.
+(``psi_pf``, independent of the IMU) and the car standing still. What a command prints is
+judged against those and against the data's own numbers (speeds, durations), never
+against a tuned value.
 
 Tests that fail today because other work on issue 21 is not merged yet are marked xfail
 with the point they wait for; the lead turns them on after the merge.
@@ -16,6 +17,7 @@ from __future__ import annotations
 import json
 import re
 import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -24,10 +26,10 @@ from scipy.integrate import cumulative_trapezoid
 
 from conftest import REPO, tool
 
-FIXTURE = REPO / "tests" / "fixtures" / "real" / "frictionmaps_ds1"
-RUN = FIXTURE / "ds1.csv"
+FIXTURE = REPO / "tests" / "fixtures" / "real" / "frictionmaps"
 VEHICLE = FIXTURE / "vehicle.toml"
 MOVING = 1.0  # m/s: the speed below which stid leaves a sample out of the dynamic fit
+G = 9.81
 CATALOGUE_EFFECTS = ("tyre_relaxation", "actuator_lag", "accel_offset", "body_roll", "tyre_saturation",
                      "sensor_bias", "steering_nonlinearity", "locked_diff", "sensor_delay", "steer_offset",
                      "gyro_scale")
@@ -36,12 +38,17 @@ WAITS_FOR_SOLVER_HONESTY = ("issue 21 point 1 / 'Solvers that say when they fail
                             "in --json and a line in the text; a contained model starts from its base")
 WAITS_FOR_NULL_INTERVALS = ("issue 21 point 1 / 'Solvers that say when they fail': no zero-width interval, "
                             "null for a parameter the data do not determine")
-WAITS_FOR_WORDS = "issue 21 point 5: every 'see below' has its section; no stray unit ('at 7.1 m/s s')"
+WAITS_FOR_INTERVALS = ("issue 21 point 4 / 'Intervals that hold the truth': a model error the data show widens "
+                       "the interval or is said")
+WAITS_FOR_BIAS_KINEMATICS = ("issue 21 point 2 / 'steer_offset and gyro_scale': a named sensor_bias must agree "
+                             "with the kinematics the data carry")
+WAITS_FOR_WORDS = ("issue 21 point 5: every 'see below' has its section; no stray unit ('at 7.1 m/s s'); "
+                   "speed words count speeds")
 WAITS_FOR_PAIRS = "issue 21 point 3 / 'Pairs before the catalogue lacks it': pairs tried, and said which"
 
 
-def data() -> pd.DataFrame:
-    return pd.read_csv(RUN)
+def data(run: str) -> pd.DataFrame:
+    return pd.read_csv(FIXTURE / run)
 
 
 def run_tool(*args, timeout=600) -> subprocess.CompletedProcess:
@@ -52,7 +59,7 @@ def run_tool(*args, timeout=600) -> subprocess.CompletedProcess:
     return r
 
 
-# -- what the log itself says (the yardsticks; stid never sees psi_pf) ------------------
+# -- what a log says about itself (the yardsticks; stid never sees psi_pf) -----------------
 
 def heading_drift(df):
     """Yaw-rate bias the particle filter's heading allows: the slope of (integral of r minus
@@ -93,69 +100,85 @@ def lateral_offset_range(df):
     return min(kin, rest) - slack, max(kin, rest) + slack
 
 
+def slow_gain_of_ay_on_vx_r(df) -> float:
+    """Least-squares gain of the slow part of ay on that of vx*r while moving: ~1 whatever
+    the car (ay = dvy/dt + vx r, and dvy/dt averages out)."""
+    moving = (df["vx"] > MOVING).to_numpy()
+    lp = lambda x: pd.Series(x).rolling(15, center=True, min_periods=1).mean().to_numpy()
+    x, y = lp(df["vx"] * df["r"])[moving], lp(df["ay"])[moving]
+    return float(np.dot(x - x.mean(), y - y.mean()) / np.dot(x - x.mean(), x - x.mean()))
+
+
 # -- the fixture: made by the kept converter, and physically right -------------------------
 
 def test_the_converter_reproduces_the_fixture_from_the_original_files(tmp_path):
-    import sys
-
     out = tmp_path / "ds1.csv"
     r = subprocess.run([sys.executable, str(REPO / "tools" / "real_logs" / "convert_frictionmaps.py"),
-                        str(FIXTURE / "original"), str(out)], capture_output=True, text=True, timeout=120)
+                        str(FIXTURE / "original_ds1"), str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert out.read_bytes() == RUN.read_bytes()
+    assert out.read_bytes() == (FIXTURE / "ds1.csv").read_bytes()
 
 
-def test_the_converted_log_agrees_with_physics_it_was_not_fitted_to():
+@pytest.mark.parametrize("run", ("ds1.csv", "ds3.csv", "ds4.csv"))
+def test_the_converted_logs_agree_with_physics_they_were_not_fitted_to(run):
     """Units, axes and signs of the conversion, each checked against something independent:
-    the lidar heading for r, the kinematics ay ~ vx*r for ay, gravity for the accelerometer."""
-    df = data()
+    the lidar heading for r, gravity for the accelerometer, the kinematics ay ~ vx*r."""
+    df = data(run)
     k, tol = gyro_scale_from_heading(df)
     assert abs(k) < 0.05 + tol, (k, tol)  # deg/s -> rad/s and the sign (z up) are right
-    slope, _ = heading_drift(df)
-    assert abs(slope) < 0.02, slope  # < 1 deg/s of drift: no unit or axis mix-up in r
-    moving = df["vx"] > MOVING
-    # the slow part of ay follows vx*r with gain ~1 (ISO: both left positive, ay in m/s^2 not g)
-    lp = lambda x: pd.Series(x).rolling(15, center=True, min_periods=1).mean().to_numpy()
-    x, y = lp(df["vx"] * df["r"])[moving], lp(df["ay"])[moving]
-    gain = float(np.dot(x - x.mean(), y - y.mean()) / np.dot(x - x.mean(), x - x.mean()))
-    assert 0.8 < gain < 1.25, gain
+    drift, _ = heading_drift(df)
+    assert abs(drift) < 0.02, drift  # < 1 deg/s: no unit or axis mix-up in r
     # at rest the horizontal axes see only a tilt's share of gravity: the vertical axis took it
     rest = standing(df)
     assert len(rest) >= 20
-    assert np.hypot(rest["ay"].mean(), rest["ax"].mean()) < 0.15 * 9.81
+    assert np.hypot(rest["ay"].mean(), rest["ax"].mean()) < 0.15 * G
+    gain = slow_gain_of_ay_on_vx_r(df)
+    if run == "ds4.csv":
+        # ds4's wheel odometry overstates the speed (the particle filter's track gives 0.59 of
+        # it): power-on wheel spin. The axes are ds1's and ds3's; the data are what they are.
+        assert 0.45 < gain < 0.7, gain
+    else:
+        assert 0.8 < gain < 1.25, gain  # ISO: both left positive, ay in m/s^2 not g
 
 
 # -- the commands: shared results ----------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def runs_and_vehicle():
-    from stid.load import load_runs
+def vehicle():
     from stid.vehicle_file import load_vehicle
 
-    vehicle = load_vehicle(VEHICLE)
-    return load_runs([RUN], vehicle), vehicle
+    return load_vehicle(VEHICLE)
+
+
+def loaded(run, vehicle):
+    from stid.load import load_runs
+
+    return load_runs([FIXTURE / run], vehicle)
 
 
 @pytest.fixture(scope="module")
-def fits(runs_and_vehicle):
+def fits(vehicle):
     from stid.fit.fitting import fit
 
-    runs, vehicle = runs_and_vehicle
+    runs = loaded("ds1.csv", vehicle)
     return {m: fit(runs, vehicle, m, "time") for m in ("bicycle", "bicycle+tyre_saturation")}
 
 
-@pytest.fixture(scope="module")
-def diagnosis(runs_and_vehicle):
-    """diagnose --peel as a function: its JSON (as the command builds it) and its text."""
-    from stid.diagnose import diagnose
-    from stid.present import diagnosis_text
+_diagnoses = {}
 
-    runs, vehicle = runs_and_vehicle
-    rounds = diagnose(runs, vehicle, "bicycle", peel=True)
-    doc = rounds[0].to_json()
-    doc["steps"] = [d.to_json() for d in rounds]
-    doc["unexplained"] = rounds[-1].unexplained.to_json()
-    return doc, diagnosis_text(rounds, [RUN.name], VEHICLE.name, peel=True)
+
+def diagnosis_of(run, vehicle):
+    """diagnose --peel as a function: its JSON (as the command builds it) and its text."""
+    if run not in _diagnoses:
+        from stid.diagnose import diagnose
+        from stid.present import diagnosis_text
+
+        rounds = diagnose(loaded(run, vehicle), vehicle, "bicycle", peel=True)
+        doc = rounds[0].to_json()
+        doc["steps"] = [d.to_json() for d in rounds]
+        doc["unexplained"] = rounds[-1].unexplained.to_json()
+        _diagnoses[run] = doc, diagnosis_text(rounds, [run], VEHICLE.name, peel=True)
+    return _diagnoses[run]
 
 
 # -- the checks, one per way a result can mislead ------------------------------------------
@@ -178,8 +201,7 @@ def named_effects(doc) -> set:
     return set(final) | {c["effect"] for c in last["candidates"] if c.get("significant")}
 
 
-def check_nothing_named_that_the_kinematics_rule_out(doc):
-    df = data()
+def check_nothing_named_that_the_kinematics_rule_out(doc, df):
     params = named_parameters(doc)
     if "bias_r" in params:
         drift, tol = heading_drift(df)
@@ -193,15 +215,28 @@ def check_nothing_named_that_the_kinematics_rule_out(doc):
         assert abs(params["k_gyro"] - k) <= tol, (params["k_gyro"], k, tol)
 
 
-def check_speed_words(text):
+def held_one_speed(df) -> bool:
+    moving = df["vx"][df["vx"] > MOVING]
+    lo, hi = np.percentile(moving, [5, 95])
+    return hi <= 1.5 * lo
+
+
+def check_speed_words(text, df):
     """Speeds the text names lie where the car drove; 'one speed' only for a run that held one."""
-    moving = data()["vx"][data()["vx"] > MOVING]
+    moving = df["vx"][df["vx"] > MOVING]
     for said in re.findall(r"\bat ((?:\d+(?:\.\d+)?, )*\d+(?:\.\d+)?) m/s", text):
         for v in map(float, said.split(", ")):
             assert moving.min() - 0.1 <= v <= moving.max() + 0.1, (v, said)
-    lo, hi = np.percentile(moving, [5, 95])
-    if hi > 1.5 * lo:  # this run spans 1-4.9 m/s
+    if not held_one_speed(df):
         assert "one speed" not in text, text
+
+
+def check_no_speed_trend_claimed_at_one_speed(text, df):
+    """A run that held one speed cannot show that anything changes with speed."""
+    if held_one_speed(df):
+        claims = re.findall(r"[^.\n]*(?:more at low speed|more at high speed|grows with speed|with speed:|"
+                            r"across speed)[^.\n]*", text)
+        assert not claims, claims
 
 
 def check_no_stray_unit(text):
@@ -217,42 +252,55 @@ def check_every_see_below_has_its_section(text):
 
 def check_catalogue_blamed_only_after_pairs(text):
     if "no effect of the catalogue" in text or "catalogue lacks" in text:
-        pair = re.compile(r"\b(%s)\+(%s)\b" % ("|".join(CATALOGUE_EFFECTS), "|".join(CATALOGUE_EFFECTS)))
-        assert pair.search(text), "blames the catalogue without saying which pairs were tried"
+        effect = "|".join(CATALOGUE_EFFECTS)
+        pair = re.compile(rf"\b({effect})\+({effect})\b")  # a pair is written as a model is
+        beyond_models = re.sub(r"\bbicycle(?:\+\w+)*", " ", text)  # the peel's models are not pairs tried
+        assert pair.search(beyond_models), "blames the catalogue without saying which pairs were tried"
 
 
 def test_the_checks_catch_what_the_review_saw():
     """The yardsticks are not loose enough to pass anything: what the review of issue 21 saw
     on a real log (a gyro offset of -0.198 rad/s, 'the runs hold one speed' for a run of
     1.2-4.4 m/s, 'at 7.1 m/s s', a 'see below' with nothing below) fails them here, and
-    what this log's own heading and stand-still say passes."""
-    drift, _ = heading_drift(data())
-    rest_r = float(standing(data())["r"].mean())
+    what a log's own heading and stand-still say passes."""
+    df = data("ds1.csv")
+    drift, _ = heading_drift(df)
+    rest_r = float(standing(df)["r"].mean())
+
+    def named(**params):
+        return {"steps": [{"params": {}, "candidates": [{"significant": True, "params": params}]}]}
+
     for ok in (drift, rest_r):
-        check_nothing_named_that_the_kinematics_rule_out(
-            {"steps": [{"params": {"bias_r": {"value": ok}}, "candidates": []}]})
+        check_nothing_named_that_the_kinematics_rule_out(named(bias_r=ok), df)
     with pytest.raises(AssertionError, match="lidar heading allows"):
-        check_nothing_named_that_the_kinematics_rule_out(
-            {"steps": [{"params": {"bias_r": {"value": -0.198}}, "candidates": []}]})
+        check_nothing_named_that_the_kinematics_rule_out(named(bias_r=-0.198), df)
     with pytest.raises(AssertionError):
-        check_nothing_named_that_the_kinematics_rule_out(
-            {"steps": [{"params": {}, "candidates": [{"significant": True, "params": {"k_gyro": 0.1}}]}]})
+        check_nothing_named_that_the_kinematics_rule_out(named(k_gyro=0.1), df)
     with pytest.raises(AssertionError):
-        check_speed_words("the runs hold one speed")
+        check_speed_words("the runs hold one speed", df)
     with pytest.raises(AssertionError):
-        check_speed_words("[2 stretches at 2.3, 7.1 m/s]")  # never driven at 7.1 m/s
+        check_speed_words("[2 stretches at 2.3, 7.1 m/s]", df)  # never driven at 7.1 m/s
+    with pytest.raises(AssertionError):
+        check_no_speed_trend_claimed_at_one_speed("the response lags more at low speed (148 ms at 1.3 m/s)",
+                                                  data("ds3.csv"))
+    check_no_speed_trend_claimed_at_one_speed("the response lags more at low speed", df)  # ds1 spans speeds
     with pytest.raises(AssertionError):
         check_no_stray_unit("tau 32 ms at 3 m/s, 43 ms at 7.1 m/s s")
     with pytest.raises(AssertionError):
         check_every_see_below_has_its_section("=> nothing explains it (see 'unexplained' below)\n\nnext: stid fit")
     check_every_see_below_has_its_section("=> nothing explains it (see 'unexplained' below)\n\nunexplained: ay ...")
+    with pytest.raises(AssertionError):  # the peel's own model is not a pair it tried
+        check_catalogue_blamed_only_after_pairs("model bicycle+tyre_relaxation+sensor_bias\n"
+                                                "=> no effect of the catalogue explains the remaining error")
+    check_catalogue_blamed_only_after_pairs("=> no effect of the catalogue explains the remaining error "
+                                            "(tried with it: sensor_delay+tyre_saturation, sensor_delay+body_roll)")
 
 
 # -- fit (default suite) ---------------------------------------------------------------------
 
 def test_stid_fit_as_a_command_gives_finite_numbers_and_true_notes(fits):
-    df = data()
-    doc = json.loads(run_tool("fit", RUN.name, "--vehicle", VEHICLE.name, "--json").stdout)  # only JSON on stdout
+    df = data("ds1.csv")
+    doc = json.loads(run_tool("fit", "ds1.csv", "--vehicle", VEHICLE.name, "--json").stdout)  # only JSON
     assert doc["model"] == "bicycle"
     for name, p in doc["params"].items():
         assert np.isfinite(p["value"]) and p["value"] > 0, (name, p)
@@ -278,8 +326,8 @@ def test_the_fit_says_whether_it_converged(fits):
 
 @pytest.mark.xfail(strict=False, reason=WAITS_FOR_SOLVER_HONESTY)
 def test_a_model_with_more_never_fits_worse_without_saying_it_failed(fits):
-    """bicycle+tyre_saturation contains bicycle (mu large): on this log its fit stopped at its
-    start (ay 3.9% against the bicycle's 33.0%, mu 1 with a zero-width interval)."""
+    """bicycle+tyre_saturation contains bicycle (mu large): on ds1 its fit stopped at its start
+    (ay 3.9% against the bicycle's 33.0%, mu 1 with a zero-width interval)."""
     base, more = fits["bicycle"], fits["bicycle+tyre_saturation"]
     worse = [o for o in ("ay", "r") if more.fit[o] < base.fit[o] - 0.5]
     if worse:
@@ -297,82 +345,120 @@ def test_no_interval_is_zero_wide(fits):
                 assert ci[1] - ci[0] > 1e-6 * max(1.0, abs(p["value"])), (model, name, ci)
 
 
-# -- diagnose --peel as a function (default suite) -------------------------------------------
+@pytest.mark.xfail(strict=False, reason=WAITS_FOR_INTERVALS)
+def test_one_car_minutes_apart_gives_intervals_that_meet(vehicle):
+    """ds3 and ds4: the same car on the same floor, 7 minutes apart. Its cornering stiffness
+    and inertia did not change between them, so 95% intervals that exclude each other say
+    more than the data know (ds3 holds one speed, ds4's odometry overstates the speed)."""
+    from stid.fit.fitting import fit
 
-def test_diagnosis_names_nothing_the_kinematics_rule_out(diagnosis):
-    doc, text = diagnosis
-    check_nothing_named_that_the_kinematics_rule_out(doc)
-    check_speed_words(text)
-    # what it names is in the catalogue, and the verdict it prints is the one in its JSON
+    res = {run: fit(loaded(run, vehicle), vehicle, "bicycle", "time").to_json()["params"]
+           for run in ("ds3.csv", "ds4.csv")}
+    for name in ("Cf", "Cr", "Iz"):
+        a, b = res["ds3.csv"][name].get("ci95"), res["ds4.csv"][name].get("ci95")
+        if a is not None and b is not None:
+            assert a[0] <= b[1] and b[0] <= a[1], (name, a, b)
+
+
+# -- diagnose --peel as a function (default suite: ds3, the run that names an effect) --------
+
+def test_diagnosis_of_a_real_run_names_only_catalogue_effects_in_true_speed_words(vehicle):
+    doc, text = diagnosis_of("ds3.csv", vehicle)
     assert named_effects(doc) <= set(CATALOGUE_EFFECTS), named_effects(doc)
     for effect in named_effects(doc):
-        assert effect in text, effect
+        assert effect in text, effect  # what the JSON names, the text says
+    check_speed_words(text, data("ds3.csv"))
+
+
+@pytest.mark.xfail(strict=False, reason=WAITS_FOR_BIAS_KINEMATICS)
+def test_diagnosis_names_nothing_the_kinematics_rule_out(vehicle):
+    """On ds3 the peel named sensor_bias with a gyro offset of -0.040 [-0.063, -0.018] rad/s;
+    the lidar heading allows -0.006 +- 0.002 and the car at rest reads -0.0075."""
+    doc, _ = diagnosis_of("ds3.csv", vehicle)
+    check_nothing_named_that_the_kinematics_rule_out(doc, data("ds3.csv"))
 
 
 @pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
-def test_diagnosis_words_point_to_what_is_there(diagnosis):
-    _, text = diagnosis
+def test_diagnosis_words_point_to_what_is_there(vehicle):
+    _, text = diagnosis_of("ds3.csv", vehicle)
     check_every_see_below_has_its_section(text)
     check_no_stray_unit(text)
+    check_no_speed_trend_claimed_at_one_speed(text, data("ds3.csv"))
 
 
 @pytest.mark.xfail(strict=False, reason=WAITS_FOR_PAIRS)
-def test_the_catalogue_is_blamed_only_after_pairs_were_tried(diagnosis):
-    _, text = diagnosis
+def test_the_catalogue_is_blamed_only_after_pairs_were_tried(vehicle):
+    _, text = diagnosis_of("ds3.csv", vehicle)
     check_catalogue_blamed_only_after_pairs(text)
 
 
 # -- the whole commands (slow: each runs the diagnosis again) --------------------------------
 
 @pytest.mark.slow
-def test_stid_diagnose_peel_as_a_command_is_honest():
-    doc = json.loads(run_tool("diagnose", RUN.name, "--vehicle", VEHICLE.name, "--peel", "--json").stdout)
-    check_nothing_named_that_the_kinematics_rule_out(doc)
-    text = run_tool("diagnose", RUN.name, "--vehicle", VEHICLE.name, "--peel").stdout
-    check_speed_words(text)
+@pytest.mark.parametrize("run", ("ds1.csv", "ds4.csv"))
+def test_stid_diagnose_peel_as_a_command_names_nothing_ruled_out(run):
+    df = data(run)
+    doc = json.loads(run_tool("diagnose", run, "--vehicle", VEHICLE.name, "--peel", "--json").stdout)
+    check_nothing_named_that_the_kinematics_rule_out(doc, df)
+    text = run_tool("diagnose", run, "--vehicle", VEHICLE.name, "--peel").stdout
+    check_speed_words(text, df)
     for effect in named_effects(doc):
         assert effect in text, effect
 
 
 @pytest.mark.slow
-def test_stid_compare_as_a_command_is_honest():
+@pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
+def test_stid_diagnose_words_on_a_run_across_speeds(vehicle):
+    """ds1 printed 'delay_s ... at steer 15.1 deg rms s' and 'see 'unexplained' below' with
+    no such section."""
+    _, text = diagnosis_of("ds1.csv", vehicle)
+    check_every_see_below_has_its_section(text)
+    check_no_stray_unit(text)
+
+
+@pytest.mark.slow
+def test_stid_compare_as_a_command_keeps_the_heading_inside_a_fitted_bias():
     models = ["bicycle", "bicycle+sensor_bias", "bicycle+tyre_saturation"]
-    doc = json.loads(run_tool("compare", RUN.name, "--vehicle", VEHICLE.name,
-                              *[a for m in models for a in ("--model", m)], "--json").stdout)
+    opts = [a for m in models for a in ("--model", m)]
+    doc = json.loads(run_tool("compare", "ds1.csv", "--vehicle", VEHICLE.name, *opts, "--json").stdout)
     entries = {e["model"]: e for e in doc["models"]}
     assert set(entries) == set(models)
-    drift, tol = heading_drift(data())
+    drift, tol = heading_drift(data("ds1.csv"))
     bias_r = entries["bicycle+sensor_bias"]["params"]["bias_r"]
     # a fitted (not named) bias may be wide, but its interval must reach what the heading allows
     lo, hi = bias_r.get("ci95") or (-np.inf, np.inf)
     assert lo - tol <= drift <= hi + tol, (bias_r, drift, tol)
-    text = run_tool("compare", RUN.name, "--vehicle", VEHICLE.name, *[a for m in models for a in ("--model", m)]).stdout
-    check_speed_words(text)
+    text = run_tool("compare", "ds1.csv", "--vehicle", VEHICLE.name, *opts).stdout
+    check_speed_words(text, data("ds1.csv"))
 
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=False, reason=WAITS_FOR_SOLVER_HONESTY)
 def test_stid_compare_never_shows_a_failed_fit_as_a_result():
     models = ["bicycle", "bicycle+tyre_saturation"]
-    doc = json.loads(run_tool("compare", RUN.name, "--vehicle", VEHICLE.name,
+    doc = json.loads(run_tool("compare", "ds1.csv", "--vehicle", VEHICLE.name,
                               *[a for m in models for a in ("--model", m)], "--json").stdout)
     base, more = (next(e for e in doc["models"] if e["model"] == m) for m in models)
     if any(more["fit"][o] < base["fit"][o] - 0.5 for o in ("ay", "r")):
         assert more.get("converged") is False, more
 
 
-@pytest.mark.slow
-def test_stid_report_as_a_command_tells_the_same_story(tmp_path, diagnosis):
+def report_text(tmp_path, run) -> str:
     import html
 
-    doc, _ = diagnosis
-    run_tool("report", RUN.name, "--vehicle", VEHICLE.name, "-o", tmp_path / "rep")
-    page = html.unescape((tmp_path / "rep" / "report.html").read_text())
-    m = re.search(r"model bicycle: fit ay ([0-9.]+)%, r ([0-9.]+)%", page)
+    run_tool("report", run, "--vehicle", VEHICLE.name, "-o", tmp_path / "rep")
+    page = (tmp_path / "rep" / "report.html").read_text()
+    return html.unescape(re.sub(r"<[^>]+>", "\n", page))
+
+
+@pytest.mark.slow
+def test_stid_report_as_a_command_tells_the_story_diagnose_tells(tmp_path, vehicle):
+    doc, _ = diagnosis_of("ds1.csv", vehicle)
+    text = report_text(tmp_path, "ds1.csv")
+    m = re.search(r"model bicycle: fit ay ([0-9.]+)%, r ([0-9.]+)%", text)
     assert m, "no fit line for bicycle on the page"
     assert (float(m.group(1)), float(m.group(2))) == (round(doc["fit"]["ay"], 1), round(doc["fit"]["r"], 1)), m
-    text = re.sub(r"<[^>]+>", " ", page)
-    check_speed_words(text)
+    check_speed_words(text, data("ds1.csv"))
     for effect in named_effects(doc):
         assert effect in text, effect
 
@@ -380,9 +466,7 @@ def test_stid_report_as_a_command_tells_the_same_story(tmp_path, diagnosis):
 @pytest.mark.slow
 @pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
 def test_stid_report_words_point_to_what_is_there(tmp_path):
-    import html
-
-    run_tool("report", RUN.name, "--vehicle", VEHICLE.name, "-o", tmp_path / "rep")
-    text = re.sub(r"<[^>]+>", "\n", html.unescape((tmp_path / "rep" / "report.html").read_text()))
+    text = report_text(tmp_path, "ds3.csv")
     check_every_see_below_has_its_section(text)
     check_no_stray_unit(text)
+    check_no_speed_trend_claimed_at_one_speed(text, data("ds3.csv"))
