@@ -11,7 +11,8 @@ import sys
 from host.errors import HostError
 from stid.errors import StidError
 
-RUNS_HELP = "RUN.mcap (stid-log) or RUN.csv (import contract)"
+RUNS_HELP = ("RUN.mcap (stid-log), RUN.csv (import contract, or mapped by [csv]), a ROS 2 bag (directory or .mcap), "
+             "a ROS 1 .bag, or a directory of per-topic CSVs (docs/ros.md)")
 
 
 def _json(doc) -> str:
@@ -311,7 +312,7 @@ def _cmd_repair(args) -> int:
 
 
 USAGE = """\
-stid turns runs logged from an RC car (stid-log's MCAP, or CSV) into a measured
+stid turns runs logged from an RC car (stid-log's MCAP, CSV, or a ROS bag) into a measured
 vehicle: cornering stiffness per axle [N/rad], yaw inertia [kg m^2], and the
 physical effects the plain single-track model misses.
 
