@@ -22,7 +22,9 @@ the ones ``stid fit --model M+E`` prints) and ask four questions:
 4. Does the evidence hold (stid.analysis.evidence)? The best candidate is refitted
    at each speed (and amplitude) the runs hold; its parameter must be plausible
    (not at a bound) and one value within the intervals. If not, it is not named and
-   the gap goes to ``unexplained`` with the reason.
+   the gap goes to ``unexplained`` with the reason. Before the ranking, sensor offsets
+   must agree with the kinematics the data carry (stid.analysis.kinematics): a steering
+   trim leaves the same mean residual, and the data, not the fit, decide which it is.
 
 Candidates are ranked by the likelihood-ratio statistic. ``peel`` repeats the
 round with the winner added until nothing is named.
