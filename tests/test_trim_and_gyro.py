@@ -171,3 +171,20 @@ def test_the_kinematics_judge_fitted_sensor_offsets_at_varying_speed(tmp_path, r
         # and the data's own kinematics measured the offset: ay - vx r = -bias_r vx at every speed
         for g in groups:
             assert abs(g.k + truth["bias_r"] * g.speed) < Z * g.se + 1e-3, g
+
+
+def test_the_gyros_zero_is_not_taken_while_a_trimmed_car_drives_off():
+    """The hall speed reads zero until the wheel has turned two pulses, and a trimmed car already
+    yaws then: the stand-still that gives the gyro's zero ends a second before the first logged
+    motion (on the simulated car the speed appeared 0.95 s after the start)."""
+    from stid.convert import gyro_bias_from_still
+
+    fs, bias = 500.0, 0.004
+    t = np.arange(int(10 * fs)) / fs
+    moving = t >= 2.0  # the car drives off at 2 s, accelerating at 1.5 m/s^2
+    v_true = np.where(moving, np.minimum(1.5 * (t - 2.0), 4.0), 0.0)
+    r = bias + v_true * 0.025 / 0.52 + 0.002 * np.random.default_rng(0).standard_normal(len(t))
+    s = np.cumsum(v_true) / fs
+    vx = np.where(s >= 2 * 0.283, v_true, 0.0)  # no speed before two pulses of 0.283 m
+    assert 0.8 < t[np.argmax(vx > 0)] - 2.0 < 1.0
+    assert gyro_bias_from_still(r, vx, fs) == pytest.approx(bias, abs=3e-4)
