@@ -25,6 +25,8 @@ import uctypes
 from machine import mem32
 from micropython import const
 
+from codec import add30
+
 # RP2040 ADC registers (datasheet 4.9.6); above 2^30, so plain ints (big on the chip),
 # used only to start and stop
 _CS = 0x4004C000

@@ -70,7 +70,7 @@ class SampleRing:
             slot += 1
             if slot == self.size:
                 slot = 0
-            if self.index[slot] != (first + n) & _MASK30:
+            if self.index[slot] != add30(first, n):
                 break
             n += 1
         return n

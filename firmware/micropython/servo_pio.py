@@ -25,6 +25,7 @@ import rp2
 from machine import Pin
 from micropython import const
 
+from codec import add30
 from pulses import ServoPulse
 
 _MASK30 = const(0x3FFFFFFF)
@@ -97,7 +98,7 @@ class ServoPulsePio(ServoPulse):
             if not _MIN_PULSE_US <= w <= _MAX_PULSE_US:
                 # a glitch, or a pair split by a full FIFO: drop one word, realign
                 if w < 0 or w > 30000:
-                    self.resyncs += 1
+                    self.resyncs = add30(self.resyncs, 1)
                     if sm.rx_fifo():
                         sm.get()
                 continue
