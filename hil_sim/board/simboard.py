@@ -124,7 +124,7 @@ class Board:
         self.busy_until = 0  # a hard ISR runs until then; pin edges wait
         self.adc_fault_at = opts.get("adc_fault_at_us", _FAR)  # one ADC read raises then
         # the hard timer's callback fails once then (a fault not modelled otherwise): rp2 stops it
-        self.timer_fault_at = opts.get("timer_fault_at_us", _FAR)
+        self.timer_fault_at = opts.get("timer_fault_at_us", s.h.get("timer_fault_us") or _FAR)
         self.timer_dead = False
         self.wdt_timeout = 0
         self.wdt_fed = 0
