@@ -121,10 +121,10 @@ def test_a_5_s_host_stall_loses_exactly_what_the_ring_cannot_hold_and_never_rese
     assert abs(last["samples"] - nominal) <= 2
     # every index the firmware took is either received or counted as an overrun
     assert len(np.unique(idx)) == len(idx) == last["samples"] - last["overruns"]
-    # the overflow: periods in the stall beyond what the ring (and the frame being written)
-    # held, within a frame and the frames already sent when the stall began
+    # the overflow: periods in the stall beyond what the ring held, plus the samples already
+    # waiting in it when the stall began (fewer than a frame's worth, or just one frame)
     overflow = stall // period - ring
-    assert overflow - 2 * 10 <= last["overruns"] <= overflow + 10, (last["overruns"], overflow)
+    assert overflow <= last["overruns"] <= overflow + 10, (last["overruns"], overflow)
     # one contiguous gap, at the stall
     gaps = np.flatnonzero(np.diff(idx) != 1)
     assert len(gaps) == 1 and np.diff(idx)[gaps[0]] - 1 == last["overruns"]
