@@ -33,7 +33,7 @@ from codec import add30
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = (0, 3, 1)
+FW_VERSION = (0, 3, 2)  # 0.3.2: issue 22 (31-bit integers, stale steer, long stops, host stalls)
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
 _COMPACT_HELLO_PERIOD_MS = const(1000)
