@@ -87,7 +87,8 @@ def test_ring_on_31_bits():
     passed(mp31(MP_TESTS / "mp_ring.py", timeout=60))
 
 
-@pytest.mark.parametrize("board, variant", [("pico", "default"), ("pico", "irq"), ("pico", "cpu"),
+@pytest.mark.parametrize("board, variant", [("pico", "default"), ("pico", "irq"),
+                                            pytest.param("pico", "cpu", marks=pytest.mark.slow),
                                             ("esp32", "default")])
 def test_firmware_across_the_tick_wrap_on_31_bits(board, variant):
     """Pico: hard timer with the ADC scan and the PIO servo (default), with the pin-IRQ servo
