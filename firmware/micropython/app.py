@@ -12,9 +12,10 @@
 #
 # It also keeps the board recoverable and alive: it feeds a watchdog only while
 # the sampler makes progress (an exception in a hard timer callback stops that
-# timer for good on rp2), never on the host's reading, and it watches its input for the escape line that
-# `stid flash` sends (ESCAPE), after which the board reboots into safe mode so
-# mpremote can reach the REPL (Ctrl-C is disabled while the app runs).
+# timer for good on rp2), never on the host's reading, and it watches its input
+# for the escape line that `stid flash` sends (ESCAPE), after which the board
+# reboots into safe mode so mpremote can reach the REPL (Ctrl-C is disabled while
+# the app runs).
 import json
 import os
 import struct
@@ -29,7 +30,6 @@ from micropython import const
 import boards
 import codec
 from pulses import HallCounter, ServoPulse
-from codec import add30
 from ring import SampleRing
 from sampler import Sampler
 
@@ -40,7 +40,7 @@ _COMPACT_HELLO_PERIOD_MS = const(1000)
 # a receiver's frame is 20 ms (some 11-22 ms): 50 ms rides out one lost pulse and marks the
 # steer stale within 3 frames of the receiver going off (the sampler reads every period)
 _STEER_TIMEOUT_US = const(50000)
-_WDT_TIMEOUT_MS = const(2000)  # 4 blocked writes (500 ms each); rp2 allows <= 8388 ms
+_WDT_TIMEOUT_MS = const(2000)  # fed before every write, which may block 500 ms; rp2 allows <= 8388 ms
 _ESCAPE_POLL_MS = const(100)
 _RING_SECONDS_X4 = const(5)  # the default ring holds 1.25 s: a 1 s host stall plus margin
 ESCAPE = b"STID-ESCAPE"  # on the input: stop, reboot into safe mode (`stid flash`)
@@ -221,14 +221,14 @@ class App:
             self.sampler.t_free = time.ticks_us()
             w = self._write(b"\x00")
             if w is not None and w < 1:
-                self.tx_short = add30(self.tx_short, 1)
+                self.tx_short = codec.add30(self.tx_short, 1)
                 return False
             self._cut = False
         self.sampler.t_free = time.ticks_us()  # the scheduler queue is empty now
         w = self._write(self.enc.wire, n)
-        self.frames = add30(self.frames, 1)
+        self.frames = codec.add30(self.frames, 1)
         if w is not None and w < n:
-            self.tx_short = add30(self.tx_short, 1)
+            self.tx_short = codec.add30(self.tx_short, 1)
             self._cut = True
             return False
         return True
