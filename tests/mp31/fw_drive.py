@@ -105,7 +105,9 @@ class Drive:
         # the car's truth
         self.next_rise = 3000  # servo pulse k rises at 3000 + 20000 k
         self.k_pulse = 0
-        self.pulse_fall = -1  # abs us of the pending fall, -1: none
+        self.pulse_rise = 0  # abs us of the pulse under way: its rise, width and fall (-1: none)
+        self.pulse_w = 0
+        self.pulse_fall = -1
         self.next_edge = -1  # abs us of the next hall edge, -1: none (parked)
         self.k_edge = 0
         self.bounce_at = -1
