@@ -22,8 +22,13 @@ class Pin:
         return _b.pin_level.get(self.id, self._idle)
 
     def irq(self, handler=None, trigger=3, hard=False):
-        # every pin IRQ runs at once here (the firmware asks for hard ones)
+        # every pin IRQ runs at once here (the firmware asks for hard ones); a hard one
+        # on a Pico with the heap locked
         _b.irq[self.id] = (handler, trigger, self)
+        if hard and _b.stim.board == "pico":
+            _b.hard_pins.add(self.id)
+        else:
+            _b.hard_pins.discard(self.id)
 
 
 class ADC:
@@ -74,8 +79,12 @@ class Timer:
         _b.timer_cb = None
 
 
+_WDT_SCRATCH4 = 0x4005801C
+
+
 class _Mem32:
-    # machine.mem32: only the RP2040 ADC registers exist here (rp2040_hw.Adc)
+    # machine.mem32: only the RP2040 ADC registers (rp2040_hw.Adc) and watchdog scratch
+    # register 4 exist here
     def _adc(self, addr):
         hw = _b.rp2040
         if hw is None or not 0x4004C000 <= addr < 0x4004C024:
@@ -83,9 +92,14 @@ class _Mem32:
         return hw.adc
 
     def __getitem__(self, addr):
+        if addr == _WDT_SCRATCH4 and _b.rp2040 is not None:
+            return _b.wdt_scratch4
         return self._adc(addr).read(addr)
 
     def __setitem__(self, addr, v):
+        if addr == _WDT_SCRATCH4 and _b.rp2040 is not None:
+            _b.wdt_scratch4 = v
+            return
         self._adc(addr).write(addr, v)
 
 
@@ -109,6 +123,8 @@ class WDT:
             raise ValueError("timeout exceeds 8388")  # rp2: 24-bit counter
         _b.wdt_timeout = timeout * 1000
         _b.wdt_fed = _b.now
+        if _b.stim.board == "pico":
+            _b.wdt_scratch4 = simboard.WDT_NON_REBOOT_MAGIC  # pico-sdk watchdog_enable
 
     def feed(self):
         _b.wdt_fed = _b.now
@@ -123,6 +139,17 @@ SOFT_RESET = 5
 
 def reset_cause():
     return _b.reset_cause
+
+
+def reset():
+    # rp2: watchdog_reboot(0, ...) writes 0 to watchdog scratch 4 and resets through the
+    # watchdog (reset_cause reads WDT_RESET); ESP32: esp_restart, SOFT_RESET
+    if _b.stim.board == "pico":
+        _b.wdt_scratch4 = 0
+        _b.reboot("watchdog")
+    else:
+        _b.reboot("soft")
+    raise simboard.MachineReset()
 
 
 def unique_id():
