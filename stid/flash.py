@@ -33,7 +33,7 @@ from stid.errors import StidError, ToolMissing
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware" / "micropython"
 # main.py stays source (the board boots it by name); config.py is written per flash.
-COMPILED_MODULES = ("codec", "ring", "pulses", "boards", "sampler", "adc_scan", "servo_pio", "app")
+COMPILED_MODULES = ("codec", "ring", "pulses", "boards", "sampler", "adc_scan", "servo_pio", "servo_pcnt", "app")
 ARCH = {"pico": "armv6m", "esp32": "xtensawin"}
 ESCAPE = b"STID-ESCAPE"  # firmware/micropython/app.py ESCAPE
 MIN_MICROPYTHON = (1, 23)  # .mpy version 6.3 (mpy-cross >= 1.23)

@@ -14,8 +14,10 @@
 # (and a scheduled callback at each rising edge) polls both:
 #   width = the counts gained since the last poll that saw the line low;
 #   fall  = t + (count now - count at t), where t is a poll that saw the line high
-#           (an anchor); a pulse no poll saw high (a write blocked the loop for all of
-#           it) has its fall placed in the middle of the span it must lie in.
+#           (an anchor). A pulse no poll saw high (a write blocked the loop for all of
+#           it) lies in a known span: a receiver sends its pulses at a steady period,
+#           learnt from the anchored pulses' rising edges, so its rise is put on that
+#           period's grid when the grid crosses the span, else mid-span.
 # Unit B tells a poll gap that held two pulses (their counts add up): dropped.
 #
 # The clock pin only carries the clock: leave it unconnected. The PCNT must be set up
@@ -39,6 +41,11 @@ _TEST_US = const(2000)
 _MIN_PULSE_US = const(400)
 _MAX_PULSE_US = const(2600)
 _FILTER = const(10)  # APB cycles (12.5 ns): glitches under 125 ns on the inputs are ignored
+_PERIOD_MIN_US = const(2500)  # receiver frame periods believed (333 Hz .. 20 Hz)
+_PERIOD_MAX_US = const(50000)
+_PERIOD_TOL_X16 = const(800)  # a rise within 50 us of the grid confirms the period
+_PERIOD_CONFIRMED = const(3)
+_PREDICT_MAX_US = const(400000)  # not from a rise older than this (and no int >= 2^30)
 
 
 class ServoPulsePcnt(ServoPulse):
@@ -88,6 +95,9 @@ class ServoPulsePcnt(ServoPulse):
         self._anchor_t = -1  # ticks of a poll that saw the line high in this pulse (-1: none)
         self._anchor_acc = 0
         self._t_last = time.ticks_us()
+        self._rise_t = -1  # ticks of the latest anchored pulse's rising edge (-1: none)
+        self._p16 = 0  # the receiver's period [us / 16], 0: not known
+        self._confirmed = 0  # rises that fell on the period's grid in a row
         # a poll while the line is high anchors the falling edge; the rising edge's
         # (scheduled) callback gives most pulses one, whatever the sampler's phase
         _irq(self.pin, self._rise, Pin.IRQ_RISING)
@@ -127,9 +137,9 @@ class ServoPulsePcnt(ServoPulse):
         # a pulse ended since the last poll
         if self._anchor_t >= 0:
             fall = time.ticks_add(self._anchor_t, acc - self._anchor_acc)
+            self._learn_period(time.ticks_add(fall, -acc))
         else:  # the whole pulse between two polls: its fall is in [t_last + acc, t]
-            lo = time.ticks_add(t_last, acc)
-            fall = time.ticks_add(lo, time.ticks_diff(t, lo) >> 1)
+            fall = self._place(acc, time.ticks_add(t_last, acc), t)
             self.unanchored += 1
         rises = self._rises
         self._acc = 0
@@ -143,6 +153,44 @@ class ServoPulsePcnt(ServoPulse):
             self.f_prev = self.t_fall
             self.width = acc
             self.t_fall = fall
+
+    def _learn_period(self, rise):
+        # the receiver's frame period from consecutive exact rises (n periods apart)
+        if self._rise_t >= 0:
+            gap = time.ticks_diff(rise, self._rise_t)
+            p16 = self._p16
+            if p16 and 0 < gap < _PREDICT_MAX_US:
+                n = (gap * 16 + (p16 >> 1)) // p16
+                err = gap * 16 - n * p16
+                if 1 <= n <= 8 and -_PERIOD_TOL_X16 <= err <= _PERIOD_TOL_X16:
+                    self._p16 = p16 + err // (4 * n)  # follows the receiver's clock slowly
+                    if self._confirmed < _PERIOD_CONFIRMED:
+                        self._confirmed += 1
+                else:
+                    p16 = 0
+            if not p16:
+                self._confirmed = 0
+                self._p16 = gap * 16 if _PERIOD_MIN_US <= gap <= _PERIOD_MAX_US else 0
+        self._rise_t = rise
+
+    def _place(self, width, lo, hi):
+        # the fall of a pulse no poll saw high lies in [lo, hi]: on the receiver's period
+        # grid when that is known and crosses the span, else in its middle
+        span = time.ticks_diff(hi, lo)
+        if span < 0:
+            return hi
+        mid = time.ticks_add(lo, span >> 1)
+        if self._confirmed < _PERIOD_CONFIRMED:
+            return mid
+        since = time.ticks_diff(mid, self._rise_t) - width  # from the last known rise to this one
+        if not 0 < since < _PREDICT_MAX_US:
+            return mid
+        p16 = self._p16
+        n = (since * 16 + (p16 >> 1)) // p16
+        fall = time.ticks_add(self._rise_t, (n * p16 + 8) // 16 + width)
+        if time.ticks_diff(fall, lo) < 0 or time.ticks_diff(hi, fall) < 0:
+            return mid
+        return fall
 
     def read(self, now, before=-1):
         # the counts become width and edge here; which pulse counts and when it is stale
