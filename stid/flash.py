@@ -309,7 +309,7 @@ def plan_script(board: str, port: str | None, build_dir: Path, rate_hz: int, bat
     fw, proto = local_versions()
     ring = ring_bytes(rate_hz, batch, wheels) + FIRMWARE_HEAP_BYTES
     notes = {
-        "probe": (f"stid checks: STIDVER .. {PLATFORM[board]} (the board is a {board}), MicroPython >= "
+        "probe": (f"stid checks: STIDVER .. {PLATFORM[board]} (--board {board}), MicroPython >= "
                   f"{'.'.join(map(str, MIN_MICROPYTHON))}; STIDMEM: free heap >= {ring} B "
                   "(ring + firmware), free flash >= the files"),
         "prepare": "main.py goes first: until it is copied back the board boots to the REPL",

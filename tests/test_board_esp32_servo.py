@@ -102,3 +102,21 @@ def test_when_the_clock_cannot_be_counted_the_firmware_falls_back_and_says_so(tm
     assert _capture(hellos) is None  # servo "irq": scheduled pin callbacks
     t_err, w_err, n = _servo_errors(stim, arr)
     assert n > 0.8 * len(stim.steer_us)
+
+
+@pytest.mark.parametrize("pcnt", [True, False])
+def test_a_log_whose_esp32_steering_was_timed_by_pin_callbacks_says_so(tmp_path, pcnt):
+    # firmware bytes -> MCAP (the recorder stid-log uses) -> stid.load: the note is there
+    # exactly when the ESP32 timed the servo with scheduled pin callbacks
+    from hil_sim.record import record_stream
+    from stid.load import load_mcap
+
+    _stimulus(tmp_path / "s.bin", 3.0)
+    opts = None if pcnt else {"esp32_pcnt": False}
+    record_stream(run_firmware(tmp_path / "s.bin", rate_hz=500, batch=10, ring_size=None, board_opts=opts),
+                  tmp_path / "run.mcap")
+    notes = [n for r in load_mcap(tmp_path / "run.mcap") for n in r.meta.get("notes", [])]
+    said = [n for n in notes if "scheduled pin callbacks" in n]
+    assert bool(said) != pcnt
+    if said:
+        assert "0.3.2" in said[0] and "pcnt" in said[0]
