@@ -49,6 +49,7 @@ PLATFORM = {"pico": "rp2", "esp32": "esp32"}  # sys.platform of each board's Mic
 ESCAPE = b"STID-ESCAPE"  # firmware/micropython/app.py ESCAPE
 MIN_MICROPYTHON = (1, 23)  # .mpy version 6.3 (mpy-cross >= 1.23)
 HARD_TIMER_MICROPYTHON = (1, 26)  # rp2 Timer(hard=True)
+PCNT_MICROPYTHON = (1, 26)  # esp32.PCNT (commit c3f3339c87, first in v1.26.0): the ESP32's steering timer
 LINE_BUDGET = 0.8  # most of the line a stream may use
 RING_SECONDS = 1.25  # app.py: the default ring holds 1.25 s of samples (_RING_SECONDS_X4 = 5)
 RING_INDEX_BYTES = 4  # ring.py: each slot also holds its sample index (array "i")
@@ -229,6 +230,10 @@ def check_micropython(version: tuple[int, int, int], board: str) -> str:
         return (f"note: MicroPython {shown} has no hard timers on rp2 (1.26+): the sampler runs "
                 "scheduled, so samples are late by up to a frame write and some periods may be "
                 "missed (counted in STATUS `missed`; HELLO says timer 'soft'). Update for fixed-rate sampling.")
+    if board == "esp32" and version[:2] < PCNT_MICROPYTHON:
+        return (f"note: MicroPython {shown} has no esp32.PCNT (1.26+): the steering pulses are timed by "
+                "scheduled pin callbacks, late by up to a frame write and some lost (HELLO without "
+                "capture.servo 'pcnt'; stid notes it). Update for steering timed to ±1 µs.")
     return ""
 
 
