@@ -33,7 +33,7 @@ from pulses import HallCounter, ServoPulse
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = (0, 3, 2)  # 0.3.2: issue 22 (31-bit integers, stale steer, long stops, host stalls)
+FW_VERSION = (0, 3, 2)  # 0.3.2: issue 22 (31-bit integers, stale steer, long stops, host stalls, ESP32 servo by PCNT)
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
 _COMPACT_HELLO_PERIOD_MS = const(1000)
@@ -86,7 +86,8 @@ def compact_hello(doc, timer_hard, sim, mp, uid):
     cap = doc.get("capture") or {"adc": "cpu", "servo": "irq"}
     body = struct.pack(codec.HELLO_C_FMT, int(doc["boot_id"], 16), _BOARD_CODES.get(doc["board"], 0),
                        (1 if timer_hard else 0) | (2 if sim else 0) | (4 if cap["adc"] == "dma" else 0)
-                       | (8 if cap["servo"] == "pio" else 0), doc["rate_hz"], doc["batch"],
+                       | (8 if cap["servo"] == "pio" else 0) | (16 if cap["servo"] == "pcnt" else 0),
+                       doc["rate_hz"], doc["batch"],
                        FW_VERSION[0], FW_VERSION[1], FW_VERSION[2], mp[0], mp[1], mp[2],
                        _RESET_CODES.get(doc["reset_cause"], 0), doc["adc"]["bits"],
                        0 if doc["adc"]["unit"] == "count" else 1, int(doc["adc"]["vref"] * 1000 + 0.5),
@@ -124,12 +125,18 @@ def _open_scan(profile, readers, period_us):
 
 def _open_servo(profile):
     """(steering pulse input, HELLO capture.servo): a PIO state machine on the RP2040,
-    else pin interrupts ("irq")."""
+    the pulse counter on the ESP32, else pin interrupts ("irq")."""
     if profile.get("servo_pio"):
         try:
             from servo_pio import ServoPulsePio
             return ServoPulsePio(profile["steer_pin"], _STEER_TIMEOUT_US), "pio"
         except (ImportError, AttributeError):  # no rp2 module / PIO: the pin IRQ below
+            pass
+    if profile.get("servo_clock_pin") is not None:
+        try:
+            from servo_pcnt import ServoPulsePcnt
+            return ServoPulsePcnt(profile["steer_pin"], _STEER_TIMEOUT_US, profile["servo_clock_pin"]), "pcnt"
+        except (ImportError, AttributeError, OSError):  # no esp32.PCNT, or its self-test failed
             pass
     return ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US), "irq"
 

@@ -64,9 +64,12 @@ PROFILES = {
         "hall_debounce_us": 200,
         "safe_pin": 0,  # the DevKit's BOOT button, read after reset
         # no hardware scan: the ESP32's ADC DMA (I2S/"continuous" mode) is not exposed by
-        # MicroPython; servo pulses by pin IRQ: MicroPython's esp32.RMT is transmit-only
+        # MicroPython
         "adc_scan": False,
         "servo_pio": False,
+        # servo pulses timed by the pulse counter (servo_pcnt.py) against a 1 MHz clock the
+        # PWM puts on this pin (leave it unconnected); MicroPython's esp32.RMT is transmit-only
+        "servo_clock_pin": 18,
     },
 }
 

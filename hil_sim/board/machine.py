@@ -21,14 +21,43 @@ class Pin:
     def value(self, v=None):
         return _b.pin_level.get(self.id, self._idle)
 
-    def irq(self, handler=None, trigger=3, hard=False):
-        # every pin IRQ runs at once here (the firmware asks for hard ones); a hard one
-        # on a Pico with the heap locked
-        _b.irq[self.id] = (handler, trigger, self)
-        if hard and _b.stim.board == "pico":
-            _b.hard_pins.add(self.id)
+    def irq(self, handler=None, trigger=3, **kw):
+        # rp2: hard=True runs the handler in the interrupt (simboard: with the heap locked),
+        # else it is scheduled. ESP32: Pin.irq takes handler, trigger and wake only
+        # (ports/esp32/machine_pin.c); every pin callback is scheduled (simboard: the queue
+        # it shares with the timer).
+        hard = kw.pop("hard", None)
+        kw.pop("wake", None)
+        if kw or (hard is not None and _b.stim.board == "esp32"):
+            raise TypeError("unexpected keyword argument")
+        if handler is None:
+            _b.irq.pop(self.id, None)
         else:
-            _b.hard_pins.discard(self.id)
+            _b.irq[self.id] = (handler, trigger, self, bool(hard))
+
+
+class PWM:
+    # ESP32 only (esp32_hw.Esp32: the LEDC output as a clock for the pulse counters);
+    # the default duty is 50% (machine_pwm.c PWM_DUTY), the only one modelled
+    def __init__(self, dest, freq=None, duty_u16=None, **kw):
+        if _b.esp32 is None:
+            raise OSError("simulated board: PWM is only modelled on the esp32")
+        self._pin = dest if isinstance(dest, int) else dest.id
+        self.init(freq=freq, duty_u16=duty_u16, **kw)
+
+    def init(self, freq=None, duty_u16=None, **kw):
+        if kw or duty_u16 not in (None, 32768):
+            raise OSError("simulated PWM: only freq and a 50% duty are modelled")
+        self._freq = 5000 if freq is None else freq  # machine_pwm.c PWM_FREQ
+        _b.esp32.pwm_start(self._pin, self._freq)
+
+    def freq(self, f=None):
+        if f is None:
+            return self._freq
+        self.init(freq=f)
+
+    def deinit(self):
+        _b.esp32.pwm_stop(self._pin)
 
 
 class ADC:
