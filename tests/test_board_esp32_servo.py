@@ -13,6 +13,7 @@ to the sampler (period 20 037 us) and its widths sweep the whole 1000-2000 us ra
 import numpy as np
 import pytest
 
+from conftest import FIRMWARE
 from hil_sim.firmware_runner import run_firmware
 from hil_sim.stimulus import Stimulus
 from test_board_capture import _servo_errors
@@ -89,10 +90,21 @@ def test_pulse_counter_goes_stale_when_the_receiver_stops(tmp_path):
     last = stim.fall_us()[stim.fall_us() < 1.5e6].max()
     back = stim.rise_us()[stim.rise_us() > 2.5e6].min()
     # (the sampler's clock starts ~2 ms after the stimulus's: the margins cover it)
-    off = (t > last + 100_000 + 10_000) & (t < back - 5_000)
+    timeout = _steer_timeout_us()
+    off = (t > last + timeout + 10_000) & (t < back - 5_000)
     assert off.sum() > 300 and np.all(arr["steer_us"][off] == 0)
-    on = (t > back + 30_000)
-    assert np.all(arr["steer_us"][on] > 0)
+    # on again until the stimulus's last pulse is older than the timeout (the run goes on after it)
+    end = stim.fall_us().max()
+    on = (t > back + 30_000) & (t < end + timeout - 5_000)
+    assert on.sum() > 500 and np.all(arr["steer_us"][on] > 0)
+
+
+def _steer_timeout_us() -> int:
+    """The firmware's own servo timeout (app.py), so the test follows a change of it."""
+    import re
+
+    src = (FIRMWARE / "app.py").read_text()
+    return int(re.search(r"_STEER_TIMEOUT_US = const\((\d+)\)", src).group(1))
 
 
 def test_when_the_clock_cannot_be_counted_the_firmware_falls_back_and_says_so(tmp_path):
