@@ -25,6 +25,7 @@ from stid.analysis.residuals import analyse  # noqa: E402
 from stid.compare import breakdown  # noqa: E402
 from stid.diagnose import diagnose  # noqa: E402
 from stid.errors import InputError  # noqa: E402
+from stid.output_paths import check_report_dir  # noqa: E402
 from stid.fit.frf import estimate_frf  # noqa: E402
 from stid.fit.steady_fit import fit_steady  # noqa: E402
 from stid.models.model import Model  # noqa: E402
@@ -347,14 +348,11 @@ def _params_table(res) -> str:
 
 
 def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None,
-                 run_paths=None, vehicle_path=None) -> Path:
+                 run_paths=None, vehicle_path=None, overwrite: bool = False) -> Path:
     """The page for ``runs``; ``rounds``: a ``diagnose(..., peel=True)`` already made of them.
     ``run_paths``, ``vehicle_path``: the files as the user named them, for the command the
     page says to run next (default: the runs' names and the vehicle file's path)."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"-o {out_dir} is a file: the report is a directory (report.html and its figures); "
-                         "give a directory path")
+    out_dir = check_report_dir(out_dir, overwrite)
     try:  # before the diagnosis: a directory that cannot be made is known in a millisecond
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
