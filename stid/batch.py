@@ -16,6 +16,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from stid.errors import InputError, StidError
+from stid.output_paths import refuse_existing
 
 
 def find_runs(pattern: str) -> list[str]:
@@ -158,9 +159,10 @@ def drift_plot(rows, out: Path, params=("Cf", "Cr", "Iz")) -> Path | None:
 PARTLY_FAILED = 3  # exit code: some runs fitted, some not (each named, and a row with its error)
 
 
-def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_diagnose) -> int:
+def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_diagnose, overwrite=False) -> int:
     if Path(output).suffix.lower() not in (".csv", ".parquet"):  # before hours of fitting, not after
         raise InputError(f"-o {output}: the table is written as .csv or .parquet; give a name ending in one")
+    refuse_existing([output, Path(output).with_suffix(".drift.png")], "stid batch", overwrite)
     files = find_runs(pattern)
     if not Path(vehicle).exists():
         raise InputError(f"vehicle file {vehicle} does not exist")

@@ -44,7 +44,7 @@ def _cmd_flash(args) -> int:
 def _cmd_export(args) -> int:
     from stid.export import export_csv
 
-    return export_csv(args.run, args.csv, args.vehicle)
+    return export_csv(args.run, args.csv, args.vehicle, overwrite=args.overwrite)
 
 
 def _cmd_fit(args) -> int:
@@ -231,12 +231,15 @@ def _cmd_compare(args) -> int:
 
 def _cmd_report(args) -> int:
     from stid.progress import Progress
+    from stid.output_paths import check_report_dir
+
+    check_report_dir(args.output, args.overwrite)  # before the imports and the loading: known at once
     from stid.report import write_report
 
     vehicle, runs = _vehicle_and_runs(args)
     with Progress("writing the report") as prog:
         path = write_report(runs, vehicle, args.output, args.model, progress=prog, run_paths=args.runs,
-                            vehicle_path=args.vehicle)
+                            vehicle_path=args.vehicle, overwrite=True)
     print(path)
     return 0
 
@@ -298,13 +301,13 @@ def _cmd_batch(args) -> int:
     from stid.batch import batch_cli
 
     return batch_cli(args.runs, args.vehicle, args.model, args.method, args.workers, args.scheduler,
-                     args.output, args.diagnose)
+                     args.output, args.diagnose, args.overwrite)
 
 
 def _cmd_calibrate(args) -> int:
     from stid.calibrate import calibrate_cli
 
-    return calibrate_cli(args.standstill, args.vehicle, args.circle or (), args.output)
+    return calibrate_cli(args.standstill, args.vehicle, args.circle or (), args.output, args.overwrite)
 
 
 def _cmd_repair(args) -> int:
@@ -379,6 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="RUN.mcap written by stid-log")
     p.add_argument("--csv", required=True, help="output CSV path")
     p.add_argument("--vehicle", help="vehicle TOML (steering and sensor calibration; default: datasheet values)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing CSV (never a recorded run)")
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("fit", help="fit a model to runs: parameters with uncertainty, fit percent, warnings")
@@ -413,6 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for report.html")
     p.add_argument("--model", default="bicycle", help="the starting model (default bicycle)")
+    p.add_argument("--overwrite", action="store_true", help="replace a report.html already in DIR")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("plan", help="predict parameter uncertainty for planned manoeuvres (Cramér-Rao bound)")
@@ -437,6 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="local processes (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("-o", "--output", default="stid-batch.csv", help="results table (.csv or .parquet)")
+    p.add_argument("--overwrite", action="store_true", help="replace the table and its drift plot if they exist")
     p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
@@ -444,6 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle", required=True, help="vehicle TOML to update ([sensors], [steering])")
     p.add_argument("--circle", action="append", metavar="RUN", help="slow steady circles for the steering calibration")
     p.add_argument("-o", "--output", help="write here instead of updating the vehicle file")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing -o file")
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("repair", help="rewrite a cut-short or damaged log into a complete one (what fails its "
