@@ -142,7 +142,10 @@ def _floor_line(res, floor, se, args) -> str:
         from stid.present import floor_words
 
         text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
-    if short:
+    if short and not res.converged:
+        text += ("\n  this fit is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
+                 + ") because the solver did not converge, not because the model must lack something")
+    elif short:
         import shlex
 
         cmd = " ".join(shlex.quote(a) for a in ["stid", "diagnose", *args.runs, "--vehicle", args.vehicle,

@@ -113,10 +113,16 @@ def geometry_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, change: 
     """(allowance per parameter in the fit's coordinates, z of the probe). ``probe`` and
     ``change`` are residual rows (scaled as r); ``cov_of(J, r)`` the noise covariance of a
     fit with Jacobian J and residuals r."""
+    from stid.fit.convergence import null_directions
+
     p = J.shape[1]
     if not np.any(probe):
         return np.zeros(p), 0.0
     Jaug = np.column_stack([J, probe])
+    if "probe" in null_directions(Jaug, [str(i) for i in range(p)] + ["probe"]):
+        # the parameters already move the outputs as the probe would: kappa has no standard error,
+        # and a z from the pseudo-inverse's zero would be a huge number that means nothing
+        return np.zeros(p), float("nan")
     step, *_ = np.linalg.lstsq(Jaug, -r, rcond=None)
     cov = cov_of(Jaug, r + Jaug @ step)
     z = float(step[-1] / np.sqrt(max(cov[-1, -1], 1e-300)))
