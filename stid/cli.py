@@ -257,8 +257,10 @@ def _cmd_plan(args) -> int:
     if args.params_from:
         from stid.fit.fitting import fit
 
-        params.update(fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time").all_params())
-        params_source = f"a fit to {', '.join(args.params_from)}"
+        fitted = fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time")
+        params.update(fitted.all_params())
+        params_source = f"a fit to {', '.join(args.params_from)}" + (
+            "" if fitted.converged else " that did not converge (its values are where the solver stopped)")
     else:
         params_source = "the model's defaults and the vehicle file's [params]"
     if not args.manoeuvre:

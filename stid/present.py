@@ -24,13 +24,13 @@ def _wrap(text: str, indent: str = "  ", first: str | None = None) -> list:
 
 
 def _params_with_intervals(res, owner=None) -> str:
-    ci = dict(zip(res.names, res.ci95))
     out = []
     for n, v in res.params().items():
         if owner is not None and res.owners.get(n) != owner:
             continue
-        lo, hi = ci[n]
-        out.append(f"{n} = {v:.4g} [{lo:.4g}, {hi:.4g}]{unit_suffix(res.units.get(n, ''))}")
+        ci = res.interval_of(n)
+        where = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else f"(no interval: {res.undetermined.get(n, '')})"
+        out.append(f"{n} = {v:.4g} {where}{unit_suffix(res.units.get(n, ''))}")
     return ", ".join(out)
 
 
@@ -90,6 +90,8 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
                      f"{floor_words(d.floor, d.floor_se)}   "
                      f"[{n} stretch{'es' if n != 1 else ''} at {', '.join(f'{v:g}' for v in speeds)} m/s]")
+        if not d.base.converged:
+            lines.extend(_wrap(d.base.verdict_line(), first="  "))
         if any(c.skipped or c.result is not None for c in d.candidates):
             lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:

@@ -151,8 +151,8 @@ def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-
         se_cr = res.half95[res.names.index("Cr")] / 1.959964
         var = ((v.b * v.L / (v.mass * D ** 2)) ** 2 * ss.stderr[0] ** 2
                + (v.b * v.a / (D * p_hat["Cr"]) ** 2) ** 2 * se_cr ** 2)
-        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr "
-                                                 f"(std. error {np.sqrt(var):.4g})")
+        se_cf = f"std. error {np.sqrt(var):.4g}" if np.isfinite(var) else "no std. error: Cr has none"
+        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr ({se_cf})")
         res.extra["eta"] = ss.value("eta")
     res.extra["steady"] = ss
     for w in ss.warnings:

@@ -248,7 +248,7 @@ def _warn_poorly_determined(result: FitResult, pieces, vehicle, lateral: bool = 
     weak = []
     for name, half, (lo, hi) in zip(result.names, result.half95, result.ci95):
         v = result.value(name)
-        if name == "CA" or not v or half <= POOR_HALF_WIDTH * abs(v):
+        if name == "CA" or not v or not np.isfinite(half) or half <= POOR_HALF_WIDTH * abs(v):
             continue
         if name == "Cx":
             if not weak_slip:
