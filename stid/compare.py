@@ -96,15 +96,18 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
 
 def _fit_each(runs, vehicle, models, method, progress, validate, stretches, held) -> list[dict]:
     from stid.analysis.residuals import analyse
+    from stid.fit import nested
     from stid.fit.fitting import fit
     from stid.fit.validate import judge_on
     from stid.models.model import Model
 
-    entries = []
+    entries, done = [], {}
     for name in models:
         if progress:
             progress.step(name)
-        res = fit(runs, vehicle, name, method, stretches=stretches)
+        # a model with effects starts from the bicycle's solution: the row above, when it is there
+        res = fit(runs, vehicle, name, method, stretches=stretches, inner=done.get(nested.BASE))
+        done[res.model] = res
         judged = judge_on(res, Model(name, vehicle), held) if held is not None else res
         ra = analyse(judged.predictions)
         bd = breakdown(judged.predictions)

@@ -161,6 +161,10 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
         white, indep = _which(e["white"]), _which(e["independent"])
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
                      f"{e['bic']:12.0f}  {white:<15}  {indep}")
+    for e in entries:
+        if not e.get("converged", True):
+            lines.extend(_wrap(f"{e['model']} did not converge: its row is where the solver stopped "
+                               f"({e['status']})", indent="  ", first=""))
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {})
     if all(math.isfinite(v) for v in fl.values()):
         lines.append(f"{'noise floor':<{w}}{_pct(fl['ay']):>8}{_pct(fl['r']):>8}   (what a correct model reaches; "
@@ -187,7 +191,8 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
 
 def _verdict(entries, runs=None, vehicle_path=None) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
-    best = min(entries, key=lambda e: e["bic"])
+    # a fit that did not converge is no candidate for the best (unless none did)
+    best = min([e for e in entries if e.get("converged", True)] or entries, key=lambda e: e["bic"])
 
     known = [o for o in ("ay", "r") if math.isfinite(fl[o])]
 
