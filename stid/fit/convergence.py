@@ -56,8 +56,12 @@ class Verdict:
 
 
 def solver_words(res) -> str:
-    """scipy's own message, its status number and how many evaluations it took."""
-    return f"{res.message.rstrip('.')} (scipy least_squares status {res.status}, {res.nfev} evaluations)"
+    """scipy's own message, its status number and how many evaluations it took (status -2 is
+    stid's own stopping rule, stid.fit.solver.settled, ending the solve through scipy's callback)."""
+    words = res.message.rstrip(".")
+    if res.status == -2:
+        words = "stopped by stid's rule: the cost still to lose is below a tenth of a standard error"
+    return f"{words} (scipy least_squares status {res.status}, {res.nfev} evaluations)"
 
 
 def remaining_step(J: np.ndarray, r: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
