@@ -1,11 +1,16 @@
 # stid: the two commands a newcomer needs are `make demo` and `make test`.
-# Everything is installed into a local virtual environment (.venv) from PyPI.
+# Everything is installed into a local virtual environment (.venv) from PyPI; the
+# 31-bit MicroPython the firmware's interrupt code is tested on comes from npm into
+# tests/mp31/node_modules (needs node and npm; without them that test says so).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: demo test bench venv vectors c-test clean
+MP31 := tests/mp31
+MP31_STAMP := $(MP31)/node_modules/.installed-stamp
+
+.PHONY: demo test bench venv mp31 vectors c-test clean
 
 $(STAMP): pyproject.toml
 	@echo "Creating $(VENV) and installing stid with its test tools (first run only)..."
@@ -15,10 +20,20 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+$(MP31_STAMP): $(MP31)/package.json $(MP31)/package-lock.json
+	@if command -v npm >/dev/null 2>&1; then \
+		echo "Installing the 31-bit MicroPython (npm, $(MP31)) for the firmware's tests (first run only)..."; \
+		npm ci --prefix $(MP31) --no-audit --no-fund --loglevel=error && touch $@; \
+	else \
+		echo "warning: npm not found: tests/test_firmware_mp31.py will fail until node and npm are installed"; \
+	fi
+
+mp31: $(MP31_STAMP)
+
 demo: $(STAMP)
 	$(BIN)/python -m hil_sim.demo
 
-test: $(STAMP)
+test: $(STAMP) $(MP31_STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
@@ -31,4 +46,4 @@ vectors: $(STAMP)
 	$(BIN)/python firmware/vectors/make_vectors.py
 
 clean:
-	rm -rf $(VENV) firmware/c/build out demo_out .pytest_cache
+	rm -rf $(VENV) $(MP31)/node_modules firmware/c/build out demo_out .pytest_cache

@@ -50,8 +50,11 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--reconnect-after", type=float, default=2.0, help="replug after this many seconds")
     f.add_argument("--link", help="keep a symlink to the current pty here (stable across replug)")
     f.add_argument("--stall", action="append", default=[], metavar="AT:FOR",
-                   help="the host stops reading at AT s for FOR s: the MCU ring overruns; past the watchdog's "
-                        "2 s the car restarts (repeatable)")
+                   help="the host stops reading at AT s for FOR s: the car keeps sampling and sends what its "
+                        "ring held afterwards; the rest is counted as overruns (repeatable)")
+    f.add_argument("--car-fault", type=float, metavar="AT",
+                   help="the car's sampler stops at AT s (as after an exception in its timer callback): the "
+                        "watchdog restarts the car 2 s later")
     f.add_argument("--fault-log", help=argparse.SUPPRESS)
     o = ap.add_argument_group("faster than real time")
     o.add_argument("--fast", action="store_true", help="record straight to -o instead of serving a port")
@@ -91,7 +94,7 @@ def config_from_args(args):
     car = load_car(args.car) if args.car else vehicle.CarParams()
     return SimConfig(plan=plan, effects=effects, effect_files=tuple(args.effect_file), seed=args.seed, car=car,
                      board=args.board, rate_hz=args.rate, batch=args.batch, start_ticks=args.start_ticks,
-                     stalls=tuple(stalls),
+                     stalls=tuple(stalls), car_fault_at=args.car_fault,
                      wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)
 
 

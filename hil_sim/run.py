@@ -36,6 +36,7 @@ class SimConfig:
     fs_sig: int = 5000  # Hz, pin voltage grid
     start_ticks: int = 0
     stalls: tuple = ()  # ((at_s, for_s), ...): the host stops reading (MCU overrun)
+    car_fault_at: float | None = None  # s: the car's sampler stops (its timer callback raised); the watchdog restarts it
     beta_sensor: float | None = None  # rms noise [rad] of an optical body-slip sensor in the CSV, or None
     wheel_speeds: bool = False  # four hall wheel sensors on the car (firmware SAMPLES4); CSV w_fl..w_rr
     wheel_ppr: int = 1  # hall pulses per wheel revolution (magnets per wheel)
@@ -90,7 +91,8 @@ def _stimulus(cfg: SimConfig, volts, pulses, rise, hall_t, halls) -> Stimulus:
                     steer_pin=wiring["steer"], hall_pin=wiring["hall"], steer_rise_us=rise,
                     wheel_halls=None if halls is None else {k: (pin, halls[k]) for k, pin in wiring["halls4"].items()},
                     wheel_ppr=cfg.wheel_ppr, start_ticks=cfg.start_ticks,
-                    stalls=[(int(a * 1e6), int(b * 1e6)) for a, b in cfg.stalls])
+                    stalls=[(int(a * 1e6), int(b * 1e6)) for a, b in cfg.stalls],
+                    timer_fault_us=None if cfg.car_fault_at is None else int(cfg.car_fault_at * 1e6))
 
 
 def _analog_pins(cfg: SimConfig, volts: dict) -> dict:

@@ -164,7 +164,9 @@ class PinVoltages:
             v = sens.vs / 2 + s * (a / G + nd * white * self.noise[name].standard_normal(n))
             out[name] = np.clip(self._lowpass(name, v), 0.0, sens.vs)
         rate_dps = np.degrees(r) + sens.gyro_noise * white * self.noise["yaw"].standard_normal(n)
-        v = sens.gyro_zero + sens.gyro_sens * np.clip(rate_dps, -300, 300)
+        # gyro_scale: this part's sensitivity is not the datasheet's (the host converts with that)
+        gain = sens.gyro_sens * (1.0 + self.car.gyro_sens_error if "gyro_scale" in self.effects else 1.0)
+        v = sens.gyro_zero + gain * np.clip(rate_dps, -300, 300)
         out["yaw"] = self._lowpass("yaw", v)
         out["vbat"] = np.full(n, sens.vbat * sens.vbat_divider)
         return tg, out

@@ -39,6 +39,7 @@ class Stimulus:
     wheel_ppr: int = 1  # hall pulses per wheel revolution (declared in HELLO)
     start_ticks: int = 0  # virtual ticks_us at t = 0 (set near 2^30 to test the wrap)
     stalls: list = field(default_factory=list)  # [(at_us, for_us)]: host stops reading
+    timer_fault_us: int | None = None  # the sampler's hard timer callback fails once then (rp2 stops it)
     # a run generated block by block holds no voltages: its rows are in a file (VoltRows)
     volt_rows: "VoltRows | None" = None
 
@@ -99,6 +100,7 @@ class Stimulus:
             "wheel_ppr": int(self.wheel_ppr),
             "duration_us": self.duration_us, "start_ticks": self.start_ticks,
             "stalls": [list(map(int, s)) for s in self.stalls],
+            "timer_fault_us": None if self.timer_fault_us is None else int(self.timer_fault_us),
         }
         hb = json.dumps(header).encode()
         with open(path, "wb") as f:

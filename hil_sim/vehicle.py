@@ -29,7 +29,7 @@ G = 9.81
 
 EFFECT_NAMES = ("actuator_lag", "tyre_relaxation", "body_roll", "accel_offset",
                 "tyre_saturation", "sensor_bias", "vibration", "steering_nonlinearity", "locked_diff",
-                "sensor_delay")
+                "sensor_delay", "steer_offset", "gyro_scale")
 
 
 @dataclass
@@ -77,6 +77,13 @@ class CarParams:
     steer_servo_x: float = -0.03  # m, servo shaft behind the front axle
     kingpin_inset: float = 0.015  # m, kingpins inboard of the wheel centres
     sensor_delay_s: float = 0.02  # s, accelerometer and gyro reach the ADC late (sensor_delay)
+    # steer_offset: the servo's centre pulse leaves the road wheels this far left of straight (a
+    # horn off by part of a spline tooth, tie rods of unequal length); the review's real 1:10 car
+    # needed -0.03 rad
+    steer_trim: float = 0.025  # rad at the road wheels
+    # gyro_scale: the gyro's true sensitivity over the datasheet's 3.3 mV/(deg/s) that the host
+    # converts with, minus one (parts differ by several percent)
+    gyro_sens_error: float = 0.05
     # steering servo pulse: centre and gain from road-wheel angle (500 us per 25 deg)
     steer_center_us: float = 1500.0
     steer_us_per_rad: float = 500.0 / math.radians(25.0)
@@ -340,6 +347,7 @@ def simulate_chunks(car: CarParams, effects: Effects, t: np.ndarray, steer_plan:
     sat = "tyre_saturation" in effects
     linkage = "steering_nonlinearity" in effects
     spool = "locked_diff" in effects
+    trim = "steer_offset" in effects
     ratio = linkage_ratio(car) if linkage else 1.0
     steer_hooks = [e.steer_angle for e in effects.custom if e.steer_angle is not None]
     body_hooks = [e.body_loads for e in effects.custom if e.body_loads is not None]
@@ -364,6 +372,9 @@ def simulate_chunks(car: CarParams, effects: Effects, t: np.ndarray, steer_plan:
             ddelta = 0.0
             delta = dcmd
         servo = delta  # the servo's output, in the road-wheel radians its calibration promises
+        if trim:  # the horn sits off centre: the linkage is driven from the trimmed angle
+            servo = servo + car.steer_trim
+            delta = servo
         if linkage:
             delta = road_wheel_angle(servo, car, ratio)
         for hook in steer_hooks:

@@ -60,6 +60,21 @@ def clipped(counts, hello: dict):
     return out & (c != MISSING)
 
 
+def pulses_total(wheel_count) -> np.ndarray:
+    """Pulses since the first sample, from the 16-bit wheel count of each sample.
+
+    Steps between samples are signed 16-bit (a wrap past 65535 is +1, not -65535), and
+    the total never goes back: a count one lower than the sample before (the Pico's
+    count as of its sample instant stepped back by one while parked, firmware before
+    0.3.2) is no pulse, and counting up to where it was is no pulse either -- never
+    +65,535. A gap of more than 32,767 pulses between two received samples (minutes of
+    lost frames at speed) cannot be told from a step back and is read as one.
+    """
+    c = np.asarray(wheel_count, dtype=np.int64)
+    steps = (np.diff(c) + 32768) % 65536 - 32768
+    return np.maximum.accumulate(np.concatenate([[0], np.cumsum(steps)]))
+
+
 def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int, radius: float,
                 mod: int = 1 << 30, centred: bool = False):
     """Wheel ground speed [m/s] from hall pulse counts and the time of the latest pulse.
@@ -70,11 +85,14 @@ def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int
     exact to the edge timestamps rather than to the sample period. When no edge
     has come for longer than twice the last period, the wheel is slowing: the
     speed is bounded by one pulse over the time since the last edge.
+
+    The count is 16 bits and only counts up; see ``pulses_total`` for a count that
+    goes back.
     """
     t = np.asarray(t_mcu_us, dtype=np.int64)
     age = (np.asarray(t_raw_us, dtype=np.int64) - np.asarray(wheel_t_us, dtype=np.int64)) % mod
     edge = t - age  # unwrapped time of the latest edge, per sample
-    total = np.concatenate([[0], np.cumsum(np.diff(np.asarray(wheel_count, dtype=np.int64)) % 65536)])
+    total = pulses_total(wheel_count)
     per_pulse = 2 * math.pi * radius / pulses_per_rev
     new = np.flatnonzero(np.diff(total) > 0) + 1  # samples at which pulses arrived
     v = np.zeros(len(t))

@@ -21,12 +21,16 @@ from stid.errors import InputError, StidError
 def find_runs(pattern: str) -> list[str]:
     p = Path(pattern)
     if p.is_dir():
-        files = sorted(str(f) for f in p.iterdir() if f.suffix.lower() in (".mcap", ".csv"))
+        files = sorted(str(f) for f in p.iterdir() if _is_run(f))
     else:
-        files = sorted(f for f in glob.glob(pattern) if Path(f).suffix.lower() in (".mcap", ".csv"))
+        files = sorted(f for f in glob.glob(pattern) if _is_run(Path(f)))
     if not files:
-        raise InputError(f"no .mcap or .csv runs found at {pattern!r}")
+        raise InputError(f"no .mcap, .bag or .csv runs (or ROS 2 bag directories) found at {pattern!r}")
     return files
+
+
+def _is_run(f: Path) -> bool:
+    return f.suffix.lower() in (".mcap", ".csv", ".bag") or (f.is_dir() and (f / "metadata.yaml").is_file())
 
 
 def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: bool) -> dict:

@@ -80,6 +80,32 @@ def standstill(path, vehicle: Vehicle) -> dict:
     return out
 
 
+def standstill_ros(path, vehicle: Vehicle) -> dict:
+    """The IMU's mounting roll and pitch from a ROS bag's stand-still (its own direction of
+    gravity; the bag's gyro zero is taken from each run's stand-still when it is loaded)."""
+    import dataclasses
+
+    from stid.load import load_file
+
+    # measured as the IMU sits, whatever the vehicle file declares now
+    bare = dataclasses.replace(vehicle, sensors={k: v for k, v in vehicle.sensors.items()
+                                                 if k not in ("mount_roll", "mount_pitch")})
+    tilts = [r.meta["imu_tilt"] for r in load_file(path, bare) if r.meta.get("imu_tilt")]
+    if not tilts:
+        raise InputError(f"{path}: no stand-still of 0.5 s with gravity in the accelerometer (a driver that removes "
+                         "gravity hides the tilt): record the car standing still for a few seconds")
+    out = dict(tilts[0])
+    out["_notes"] = [f"mounting roll {math.degrees(out['mount_roll']):+.2f} deg, pitch "
+                     f"{math.degrees(out['mount_pitch']):+.2f} deg from the direction of gravity (ROS IMU)"]
+    return out
+
+
+def is_ros(path, vehicle: Vehicle) -> bool:
+    from stid.ros import bag, topic_files
+
+    return bool(bag.kind_of(path)) or (Path(path).is_dir() and topic_files.names_files(vehicle.ros))
+
+
 def _mounting(g_sensor: np.ndarray) -> tuple[float, float]:
     """Roll and pitch (as stid.convert applies them) that turn gravity onto body z."""
     from scipy.optimize import least_squares
@@ -134,13 +160,16 @@ def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: s
                                          f"the directory {out.absolute().parent} does not exist; create it or "
                                          "give another path"))
     vehicle = load_vehicle(vehicle_path)
-    st = standstill(standstill_path, vehicle)
+    st = standstill_ros(standstill_path, vehicle) if is_ros(standstill_path, vehicle) else \
+        standstill(standstill_path, vehicle)
     sensors = dict(vehicle.sensors)
     sensors.update({k: v for k, v in st.items() if not k.startswith("_")})
     text = Path(vehicle_path).read_text()
     text = _replace_table(text, "sensors", sensors)
-    print(f"gyro zero {st['gyro_zero_v']:.4f} V (bias {st['_gyro_bias_rad_s']:+.4f} rad/s against the "
-          f"datasheet 1.65 V); accelerometer offsets {np.round(st['accel_offset'], 3).tolist()} m/s^2", file=sys.stderr)
+    if "gyro_zero_v" in st:
+        print(f"gyro zero {st['gyro_zero_v']:.4f} V (bias {st['_gyro_bias_rad_s']:+.4f} rad/s against the "
+              f"datasheet 1.65 V); accelerometer offsets {np.round(st['accel_offset'], 3).tolist()} m/s^2",
+              file=sys.stderr)
     for n in st["_notes"]:
         print(n, file=sys.stderr)
     if circles:

@@ -7,11 +7,13 @@ from __future__ import annotations
 import argparse
 import gc
 import sys
+from pathlib import Path
 
 from host.errors import HostError
 from stid.errors import StidError
 
-RUNS_HELP = "RUN.mcap (stid-log) or RUN.csv (import contract)"
+RUNS_HELP = ("RUN.mcap (stid-log), RUN.csv (import contract, or mapped by [csv]), a ROS 2 bag (directory or .mcap), "
+             "a ROS 1 .bag, or a directory of per-topic CSVs (docs/ros.md)")
 
 
 def _json(doc) -> str:
@@ -35,7 +37,8 @@ def _json(doc) -> str:
 def _cmd_flash(args) -> int:
     from stid.flash import flash
 
-    return flash(args.board, port=args.port, dry_run=args.dry_run, rate_hz=args.rate, batch=args.batch)
+    return flash(args.board, port=args.port, dry_run=args.dry_run, rate_hz=args.rate, batch=args.batch,
+                 wheels=args.wheels, build_dir=args.build_dir)
 
 
 def _cmd_export(args) -> int:
@@ -316,7 +319,7 @@ def _cmd_repair(args) -> int:
 
 
 USAGE = """\
-stid turns runs logged from an RC car (stid-log's MCAP, or CSV) into a measured
+stid turns runs logged from an RC car (stid-log's MCAP, CSV, or a ROS bag) into a measured
 vehicle: cornering stiffness per axle [N/rad], yaw inertia [kg m^2], and the
 physical effects the plain single-track model misses.
 
@@ -368,7 +371,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", help="serial port of the board (default: mpremote's auto)")
     p.add_argument("--rate", type=int, default=500, help="sample rate [Hz] (default 500)")
     p.add_argument("--batch", type=int, default=10, help="samples per frame (default 10)")
-    p.add_argument("--dry-run", action="store_true", help="print what would be done, do nothing")
+    p.add_argument("--wheels", type=int, default=1, choices=[1, 4],
+                   help="hall sensors: 1 (rear left) or 4 (the board's four-wheel pins) (default 1)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the flash as a shell script (run it as printed to flash), do nothing")
+    p.add_argument("--build-dir", type=Path, default=None,
+                   help="folder for the compiled files (default: a temporary one; with --dry-run "
+                        "./stid-flash-BOARD, which the printed script creates)")
     p.set_defaults(func=_cmd_flash)
 
     p = sub.add_parser("export", help="write a logged run as CSV in SI units (the import contract)")

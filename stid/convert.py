@@ -48,9 +48,23 @@ def steer_angle(steer_us, vehicle: Vehicle):
     return np.where(us > 0, (us - vehicle.steer_center_us) / vehicle.steer_us_per_rad, np.nan)
 
 
+# The hall speed is zero until the wheel has turned two pulses (a speed needs two edges): the
+# car already moves before, and with a steering trim, which every RC car has, it already yaws.
+# On the simulated reference car (one magnet, 0.28 m a pulse) the speed appeared 0.95 s after
+# the start; a trim of 0.025 rad then moved the gyro's zero by 0.47 deg/s (0.008 rad/s), which
+# diagnose named as a sensor offset. From rest at constant acceleration a the two pulses take
+# sqrt(4 p / a): 1 s covers a > 1.1 m/s^2 (slower starts yaw less in that time).
+START_LOOKBACK_S = 1.0
+
+
 def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float):
-    """Mean yaw rate while standing still, or None when the run never stands still."""
+    """Mean yaw rate while standing still, or None when the run never stands still. The last
+    ``START_LOOKBACK_S`` before the wheel sensor first sees motion is left out."""
     mask = segments.still_mask(vx, fs)
+    back = int(START_LOOKBACK_S * fs)
+    for a, b in segments.runs_of(mask, 1):
+        if b < len(mask):  # the car drives off after this stretch
+            mask[max(a, b - back):b] = False
     if mask.sum() < 0.5 * fs:
         return None
     return float(np.mean(r[mask]))

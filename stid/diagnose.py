@@ -22,7 +22,9 @@ the ones ``stid fit --model M+E`` prints) and ask four questions:
 4. Does the evidence hold (stid.analysis.evidence)? The best candidate is refitted
    at each speed (and amplitude) the runs hold; its parameter must be plausible
    (not at a bound) and one value within the intervals. If not, it is not named and
-   the gap goes to ``unexplained`` with the reason.
+   the gap goes to ``unexplained`` with the reason. Before the ranking, sensor offsets
+   must agree with the kinematics the data carry (stid.analysis.kinematics): a steering
+   trim leaves the same mean residual, and the data, not the fit, decide which it is.
 
 Candidates are ranked by the likelihood-ratio statistic. ``peel`` repeats the
 round with the winner added until nothing is named.
@@ -38,7 +40,8 @@ import numpy as np
 from scipy.special import chdtrc, chdtri  # chi-square survival function and its inverse (scipy.stats costs 0.4 s to import)
 
 from stid import workers
-from stid.analysis.evidence import check_evidence
+from stid.analysis.evidence import Evidence, check_evidence
+from stid.analysis.kinematics import kinematic_veto
 from stid.analysis.noise_floor import noise_floor_uncertainty, submit_floor
 from stid.analysis.residuals import analyse
 from stid.analysis.unexplained import describe_unexplained
@@ -232,6 +235,10 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
                          f"(gains {', '.join(f'{o} {c.gain[o]:.2f}' for o in OUTS)})")
         else:
             c.passes = True
+        if c.passes:  # a sensor offset the data's own kinematics rule out is no finding (a trim makes one)
+            veto = kinematic_veto(c.effect, c.result, stretches)
+            if veto:
+                c.passes, c.evidence, c.why_not = False, Evidence(False, veto), f"not named: {veto}"
     todo.sort(key=lambda c: (not c.passes, -c.lr))
     _name_one(todo, model_name, vehicle, stretches, progress, pool, n_eff, floor)
     for c in todo:

@@ -1,23 +1,33 @@
-"""Put the firmware on a board: check the link budget and the board's MicroPython,
-stop the running app, precompile with mpy-cross, copy with mpremote, verify.
+"""Put the firmware on a board: check the link budget, the board and its memory, stop
+the running app, precompile with mpy-cross, copy with mpremote, verify.
 
-The steps, in order (``plan`` lists the commands, ``--dry-run`` prints them):
+The steps, in order (``plan`` lists them; ``--dry-run`` prints them as a shell script
+that does the flash when run as printed):
 
 1. Refuse a rate the link cannot carry: more than 80% of the line (the arithmetic
    is in the message), or a rate whose period is not a whole number of µs.
-2. Send the escape line (``app.ESCAPE``) on the port at the link's baud: a board
+2. Compile every module with mpy-cross for the board's architecture and write
+   ``config.py`` into the build folder.
+3. Send the escape line (``app.ESCAPE``) on the port at the link's baud: a board
    running the app reboots into safe mode (Ctrl-C is disabled while it runs, and
    mpremote needs Ctrl-C to enter the raw REPL). firmware/README.md has the
    recovery by hand.
-3. Ask the board for ``sys.implementation``: refuse below MicroPython 1.23 (the
-   ``.mpy`` format mpy-cross writes), warn below 1.26 (no hard timer on rp2).
-4. Compile, remove stale ``.py`` copies of the compiled modules (a ``.py`` beside
-   a ``.mpy`` is imported first), copy, compare SHA-256 of every file on the
-   board with the local one, reset.
+4. Ask the board (one script): ``sys.platform`` must be the ``--board``'s; MicroPython
+   1.23 or newer (the ``.mpy`` format), 1.26 for the Pico's hard timer (a note);
+   ``gc.mem_free()`` must hold the sample ring the rate needs plus the firmware; the
+   filesystem must have room for the files.
+5. Remove ``main.py`` and stale ``.py`` copies of the compiled modules (a ``.py``
+   beside a ``.mpy`` is imported first). Without ``main.py`` the board boots to the
+   REPL: a flash that stops half way leaves a board that can be flashed again.
+6. Copy the modules and ``config.py``, compare the SHA-256 of each on the board with
+   the build, then import the firmware on the board and read back its firmware and
+   protocol versions (the ``.mpy`` files load there, and they are this build's).
+7. Copy ``main.py`` last, verify it, reset.
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import re
 import shlex
@@ -33,12 +43,22 @@ from stid.errors import StidError, ToolMissing
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware" / "micropython"
 # main.py stays source (the board boots it by name); config.py is written per flash.
-COMPILED_MODULES = ("codec", "ring", "pulses", "boards", "sampler", "adc_scan", "servo_pio", "app")
+COMPILED_MODULES = ("codec", "ring", "pulses", "boards", "sampler", "adc_scan", "servo_pio", "servo_pcnt", "app")
 ARCH = {"pico": "armv6m", "esp32": "xtensawin"}
+PLATFORM = {"pico": "rp2", "esp32": "esp32"}  # sys.platform of each board's MicroPython port
 ESCAPE = b"STID-ESCAPE"  # firmware/micropython/app.py ESCAPE
 MIN_MICROPYTHON = (1, 23)  # .mpy version 6.3 (mpy-cross >= 1.23)
 HARD_TIMER_MICROPYTHON = (1, 26)  # rp2 Timer(hard=True)
+PCNT_MICROPYTHON = (1, 26)  # esp32.PCNT (commit c3f3339c87, first in v1.26.0): the ESP32's steering timer
 LINE_BUDGET = 0.8  # most of the line a stream may use
+RING_SECONDS = 1.25  # app.py: the default ring holds 1.25 s of samples (_RING_SECONDS_X4 = 5)
+RING_INDEX_BYTES = 4  # ring.py: each slot also holds its sample index (array "i")
+# What the firmware itself takes of the heap besides the ring: its modules' code and
+# objects, frame buffers, the RP2040's DMA scan ring. Measured with App(ring_size=20) on
+# the simulated board under the 64-bit MicroPython unix port (gc.mem_alloc: 67 kB for the
+# Pico, 55 kB for the ESP32); a 32-bit board's objects are smaller, so this is a ceiling.
+FIRMWARE_HEAP_BYTES = 68_000
+FS_MARGIN_BYTES = 8192  # littlefs writes a file's new blocks before it frees the old ones
 
 
 @dataclass(frozen=True)
@@ -65,13 +85,20 @@ def stream_bytes_per_s(rate_hz: int, batch: int, wheels: int = 1) -> float:
     return rate_hz * (RECORD_SIZE[wheels] + FRAME_OVERHEAD / batch) + HOUSEKEEPING_BYTES_PER_S
 
 
+def _whole_us_rates(most: int):
+    return (r for r in range(most, 0, -1) if 1_000_000 % r == 0)
+
+
 def check_link(board: str, rate_hz: int, batch: int, wheels: int = 1) -> str:
     """The link budget in one line; raises StidError when the rate does not fit."""
     if rate_hz <= 0 or 1_000_000 % rate_hz:
         raise StidError(f"--rate {rate_hz} Hz: the sample period must be a whole number of µs "
                         "(1000000 divisible by the rate): try 200, 250, 400, 500, 625, 800 or 1000")
+    if wheels not in RECORD_SIZE:
+        raise StidError(f"--wheels {wheels}: the firmware reads one hall sensor or four")
     if not 1 <= batch <= (38 if wheels == 1 else 22):
-        raise StidError(f"--batch {batch}: must be 1..{38 if wheels == 1 else 22} samples per frame")
+        raise StidError(f"--batch {batch}: must be 1..{38 if wheels == 1 else 22} samples per frame "
+                        f"with {wheels} hall sensor{'s' if wheels > 1 else ''}")
     link = LINKS[board]
     need = stream_bytes_per_s(rate_hz, batch, wheels)
     share = need / link.bytes_per_s
@@ -81,9 +108,32 @@ def check_link(board: str, rate_hz: int, batch: int, wheels: int = 1) -> str:
     if share > LINE_BUDGET:
         most = int((LINE_BUDGET * link.bytes_per_s - HOUSEKEEPING_BYTES_PER_S)
                    / (RECORD_SIZE[wheels] + FRAME_OVERHEAD / batch))
-        most = max((r for r in range(1, most + 1) if 1_000_000 % r == 0), default=1)  # a whole-µs period
+        most = next(_whole_us_rates(most), 1)  # the highest rate that fits and has a whole-µs period
         raise StidError(f"{line}, more than {100 * LINE_BUDGET:.0f}%: samples would be lost. "
                         f"Use --rate {most} or less.")
+    return line
+
+
+def ring_bytes(rate_hz: int, batch: int, wheels: int = 1) -> int:
+    """Heap the firmware's default sample ring takes (app.py: 1.25 s, at least two frames)."""
+    slots = max(2 * batch, rate_hz * 5 // 4)
+    return slots * (RECORD_SIZE[wheels] + RING_INDEX_BYTES)
+
+
+def check_heap(rate_hz: int, batch: int, wheels: int, mem_free: int) -> str:
+    """The RAM budget in one line; raises StidError when the ring does not fit the heap
+    the board reported (gc.mem_free() at its REPL, what main.py starts the app with)."""
+    ring = ring_bytes(rate_hz, batch, wheels)
+    need = ring + FIRMWARE_HEAP_BYTES
+    line = (f"ring of {RING_SECONDS:g} s = {max(2 * batch, rate_hz * 5 // 4)} samples x "
+            f"{RECORD_SIZE[wheels] + RING_INDEX_BYTES} B = {ring / 1000:.1f} kB + firmware "
+            f"{FIRMWARE_HEAP_BYTES / 1000:.0f} kB = {need / 1000:.1f} kB of the board's {mem_free / 1000:.1f} kB "
+            "free heap")
+    if need > mem_free:
+        most = next((r for r in _whole_us_rates(rate_hz)
+                     if ring_bytes(r, batch, wheels) + FIRMWARE_HEAP_BYTES <= mem_free), None)
+        advice = f"Use --rate {most} or less." if most else "Free memory on the board (remove boot.py extras)."
+        raise StidError(f"{line}: does not fit, the firmware would stop with MemoryError. {advice}")
     return line
 
 
@@ -97,52 +147,232 @@ def _tool(name: str) -> str:
     return found
 
 
-def config_text(board: str, rate_hz: int, batch: int) -> str:
-    return (f"# written by 'stid flash'\nBOARD = {board!r}\nRATE_HZ = {rate_hz}\nBATCH = {batch}\n")
+def config_text(board: str, rate_hz: int, batch: int, wheels: int = 1) -> str:
+    text = f"# written by 'stid flash'\nBOARD = {board!r}\nRATE_HZ = {rate_hz}\nBATCH = {batch}\n"
+    if wheels == 4:
+        text += "WHEELS = 4\n"  # the profile's four hall sensors (boards.py wheel_pins4)
+    return text
 
 
-_VERSION_SCRIPT = "import sys; print('STIDVER', *sys.implementation.version[:3], sys.platform)"
+def local_versions() -> tuple[tuple[int, int, int], int]:
+    """(firmware version, protocol version) of this build, read from the sources."""
+    def assigned(module: str, name: str):
+        tree = ast.parse((FIRMWARE_DIR / f"{module}.py").read_text())
+        node = next(n.value for n in tree.body if isinstance(n, ast.Assign)
+                    and getattr(n.targets[0], "id", "") == name)
+        if isinstance(node, ast.Call):  # VERSION = const(3)
+            node = node.args[0]
+        return ast.literal_eval(node)
+
+    return tuple(assigned("app", "FW_VERSION")), int(assigned("codec", "VERSION"))
 
 
-def _cleanup_script() -> str:
-    names = ", ".join(repr(m + ".py") for m in COMPILED_MODULES)
-    return ("import os\nfor f in (" + names + "):\n try:\n  os.remove(f); print('STIDRM', f)\n"
-            " except OSError:\n  pass\n")
+# -- what runs on the board (mpremote exec) ----------------------------------------------
+# (double quotes only: the printed plan quotes each script in single quotes)
+PROBE_SCRIPT = ('import sys, gc, os\ngc.collect()\ntry:\n s = os.statvfs("/")\n fs = s[0] * s[4]\n'
+                'except (AttributeError, OSError):\n fs = -1\n'
+                'print("STIDVER", *sys.implementation.version[:3], sys.platform)\n'
+                'print("STIDMEM", gc.mem_free(), fs)\n')
+READBACK_SCRIPT = 'import app, codec\nprint("STIDFW", *app.FW_VERSION, codec.VERSION)\n'
+
+
+def _names(names) -> str:
+    return ", ".join(f'"{n}"' for n in names)
+
+
+def _prepare_script() -> str:
+    # main.py first: from here until it is copied back the board boots to the REPL
+    return ("import os\nfor f in (" + _names(m + ".py" for m in ("main",) + COMPILED_MODULES) + "):\n"
+            ' try:\n  os.remove(f); print("STIDRM", f)\n except OSError:\n  pass\n')
 
 
 def _hash_script(names) -> str:
-    return ("import hashlib, binascii\nfor f in (" + ", ".join(repr(n) for n in names) + ",):\n"
-            " h = hashlib.sha256()\n with open(f, 'rb') as fh:\n  h.update(fh.read())\n"
-            " print('STIDSHA', f, binascii.hexlify(h.digest()).decode())\n")
+    return ("import hashlib, binascii\nfor f in (" + _names(names) + ",):\n"
+            ' h = hashlib.sha256()\n with open(f, "rb") as fh:\n  h.update(fh.read())\n'
+            ' print("STIDSHA", f, binascii.hexlify(h.digest()).decode())\n')
 
 
-def plan(board: str, port: str | None, build_dir: Path, rate_hz: int, batch: int) -> list[list[str]]:
-    """The exact commands a flash runs, in order (the escape and version check come first)."""
+@dataclass(frozen=True)
+class BoardFacts:
+    version: tuple[int, int, int]
+    platform: str
+    mem_free: int
+    fs_free: int  # bytes; -1 when the board did not say
+
+
+def parse_probe(text: str, board: str, port: str | None) -> BoardFacts:
+    """The board's answer to PROBE_SCRIPT; refuses another board or a garbled answer."""
+    ver = re.search(r"^STIDVER (\d+) (\d+) (\d+) (\S+)\s*$", text, re.M)
+    mem = re.search(r"^STIDMEM (\d+) (-?\d+)\s*$", text, re.M)
+    where = port or "the port mpremote found"
+    if not ver or not mem:
+        shown = text.strip()[:80]
+        raise StidError(f"the board on {where} did not answer the version probe as MicroPython does "
+                        f"(got {shown!r}). Is MicroPython on it, and no other program on the port? "
+                        "Reset the board and try again; firmware/README.md, 'Recovery', if the app "
+                        "keeps running. Nothing was written to the board.")
+    platform = ver.group(4)
+    if platform != PLATFORM[board]:
+        other = next((b for b, p in PLATFORM.items() if p == platform), None)
+        fix = f"use --board {other}" if other else "stid supports " + ", ".join(PLATFORM)
+        raise StidError(f"the board on {where} runs MicroPython for {platform!r} (sys.platform), not a "
+                        f"{board} ({PLATFORM[board]!r}): {fix}. Nothing was written to the board.")
+    return BoardFacts(tuple(int(x) for x in ver.groups()[:3]), platform, int(mem.group(1)), int(mem.group(2)))
+
+
+def check_micropython(version: tuple[int, int, int], board: str) -> str:
+    """Refuse below 1.23; return a note ("" if none)."""
+    shown = ".".join(map(str, version))
+    if version[:2] < MIN_MICROPYTHON:
+        raise StidError(f"the board runs MicroPython {shown}; the compiled firmware (.mpy 6.3) needs "
+                        f"{'.'.join(map(str, MIN_MICROPYTHON))} or newer: update MicroPython on the board.")
+    if board == "pico" and version[:2] < HARD_TIMER_MICROPYTHON:
+        return (f"note: MicroPython {shown} has no hard timers on rp2 (1.26+): the sampler runs "
+                "scheduled, so samples are late by up to a frame write and some periods may be "
+                "missed (counted in STATUS `missed`; HELLO says timer 'soft'). Update for fixed-rate sampling.")
+    if board == "esp32" and version[:2] < PCNT_MICROPYTHON:
+        return (f"note: MicroPython {shown} has no esp32.PCNT (1.26+): the steering pulses are timed by "
+                "scheduled pin callbacks, late by up to a frame write and some lost (HELLO without "
+                "capture.servo 'pcnt'; stid notes it). Update for steering timed to ±1 µs.")
+    return ""
+
+
+def check_filesystem(fs_free: int, files: list[Path]) -> None:
+    need = sum(f.stat().st_size for f in files) + FS_MARGIN_BYTES
+    if 0 <= fs_free < need:
+        raise StidError(f"the board's filesystem has {fs_free / 1000:.1f} kB free, the firmware needs "
+                        f"{need / 1000:.1f} kB: remove files you do not need "
+                        "('mpremote fs ls', 'mpremote fs rm FILE') and flash again. Nothing was written.")
+
+
+def verify(text: str, files: list[Path]) -> None:
+    got = dict(re.findall(r"STIDSHA (\S+) ([0-9a-f]{64})", text))
+    bad = [f.name for f in files if got.get(f.name) != hashlib.sha256(f.read_bytes()).hexdigest()]
+    if bad:
+        raise StidError(f"the copy on the board differs from the build for {', '.join(bad)}: "
+                        "flash again; if it persists the board's filesystem may be full or damaged.")
+
+
+def check_readback(text: str) -> None:
+    m = re.search(r"^STIDFW (\d+) (\d+) (\d+) (\d+)\s*$", text, re.M)
+    fw, proto = local_versions()
+    want = "firmware %d.%d.%d, protocol %d" % (*fw, proto)
+    if not m:
+        shown = text.strip().splitlines()[-1:] or ["nothing"]
+        raise StidError(f"the firmware copied to the board does not import there ({shown[0][:100]}); "
+                        f"expected {want}. main.py is not on the board yet, so it boots to the REPL: "
+                        "flash again; if it persists, report it with the board's MicroPython version.")
+    got = tuple(int(x) for x in m.groups())
+    if got != (*fw, proto):
+        raise StidError("the board reports firmware %d.%d.%d, protocol %d after the copy; " % got
+                        + f"this build is {want}: flash again (a stale file on the board?).")
+
+
+# -- the plan ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Step:
+    kind: str  # compile, config, escape, probe, prepare, copy, hash, readback, copy_main, hash_main, reset
+    cmd: list[str]
+
+
+def _connect(port: str | None) -> list[str]:
+    return ["connect", port] if port else ["connect", "auto"]
+
+
+def _escape_cmd(port: str, board: str) -> list[str]:
+    code = (f"import serial, time; s = serial.Serial({port!r}, {LINKS[board].baud or 115200}); "
+            f"s.write(b'\\r\\n' + {ESCAPE!r} + b'\\r\\n'); s.flush(); s.close(); time.sleep(2.5)")
+    return [sys.executable, "-c", code]
+
+
+def plan(board: str, port: str | None, build_dir: Path, rate_hz: int, batch: int, wheels: int = 1) -> list[Step]:
+    """The commands a flash runs, in order."""
     if board not in ARCH:
         raise StidError(f"unknown board {board!r}: choose one of {', '.join(ARCH)}")
-    cmds = []
-    for mod in COMPILED_MODULES:
-        cmds.append([_tool("mpy-cross"), f"-march={ARCH[board]}", "-o", str(build_dir / f"{mod}.mpy"),
-                     str(FIRMWARE_DIR / f"{mod}.py")])
-    connect = ["connect", port] if port else ["connect", "auto"]
-    mpremote = _tool("mpremote")
-    cmds.append([mpremote, *connect, "exec", _cleanup_script()])
-    files = [str(build_dir / f"{m}.mpy") for m in COMPILED_MODULES]
-    files += [str(FIRMWARE_DIR / "main.py"), str(build_dir / "config.py")]
-    cmds.append([mpremote, *connect, "fs", "cp", *files, ":"])
-    cmds.append([mpremote, *connect, "exec", _hash_script([Path(f).name for f in files])])
-    cmds.append([mpremote, *connect, "reset"])
-    return cmds
+    mpremote = [_tool("mpremote"), *_connect(port)]
+    steps = [Step("compile", [_tool("mpy-cross"), f"-march={ARCH[board]}", "-o", str(build_dir / f"{m}.mpy"),
+                              str(FIRMWARE_DIR / f"{m}.py")]) for m in COMPILED_MODULES]
+    steps.append(Step("config", []))
+    if port:
+        steps.append(Step("escape", _escape_cmd(port, board)))
+    steps.append(Step("probe", [*mpremote, "exec", PROBE_SCRIPT]))
+    steps.append(Step("prepare", [*mpremote, "exec", _prepare_script()]))
+    files = [str(build_dir / f"{m}.mpy") for m in COMPILED_MODULES] + [str(build_dir / "config.py")]
+    steps.append(Step("copy", [*mpremote, "fs", "cp", *files, ":"]))
+    steps.append(Step("hash", [*mpremote, "exec", _hash_script([Path(f).name for f in files])]))
+    steps.append(Step("readback", [*mpremote, "exec", READBACK_SCRIPT]))
+    steps.append(Step("copy_main", [*mpremote, "fs", "cp", str(FIRMWARE_DIR / "main.py"), ":"]))
+    steps.append(Step("hash_main", [*mpremote, "exec", _hash_script(["main.py"])]))
+    steps.append(Step("reset", [*mpremote, "reset"]))
+    return steps
 
 
+def plan_script(board: str, port: str | None, build_dir: Path, rate_hz: int, batch: int, wheels: int,
+                budget: str) -> str:
+    """The plan as a shell script that flashes the board when run as printed; what stid
+    checks in the board's answers is said in the comments beside each step."""
+    fw, proto = local_versions()
+    ring = ring_bytes(rate_hz, batch, wheels) + FIRMWARE_HEAP_BYTES
+    notes = {
+        "probe": (f"stid checks: STIDVER .. {PLATFORM[board]} (--board {board}), MicroPython >= "
+                  f"{'.'.join(map(str, MIN_MICROPYTHON))}; STIDMEM: free heap >= {ring} B "
+                  "(ring + firmware), free flash >= the files"),
+        "prepare": "main.py goes first: until it is copied back the board boots to the REPL",
+        "hash": "stid checks: each STIDSHA equals sha256sum of the file in the build folder",
+        "readback": "stid checks: STIDFW %d %d %d %d (firmware, protocol)" % (*fw, proto),
+        "hash_main": "stid checks: STIDSHA main.py equals sha256sum of it",
+        "escape": "a running app reboots into safe mode",
+    }
+    lines = [f"# stid flash: {board} ({ARCH[board]}), {rate_hz} Hz, {batch} samples per frame, "
+             f"{wheels} hall sensor{'s' if wheels > 1 else ''}",
+             f"# link: {budget}", "set -e", shlex.join(["mkdir", "-p", str(build_dir)])]
+    if not port:
+        lines.append("# no --port: no escape is sent; if the app is running, mpremote cannot stop it "
+                     "(firmware/README.md, 'Recovery')")
+    for step in plan(board, port, build_dir, rate_hz, batch, wheels):
+        if step.kind == "config":
+            lines.append(f"cat > {shlex.quote(str(build_dir / 'config.py'))} <<'STID_CONFIG'")
+            lines.extend(config_text(board, rate_hz, batch, wheels).splitlines())
+            lines.append("STID_CONFIG")
+            continue
+        if step.kind in notes:
+            lines.append(f"# {notes[step.kind]}")
+        lines.append(shlex.join(step.cmd))
+    return "\n".join(lines) + "\n"
+
+
+# -- running it ------------------------------------------------------------------------------
 def _run(cmd: list[str]) -> str:
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
-        detail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
-        raise StidError(f"'{Path(cmd[0]).name} {cmd[1]}' failed ({detail[0]}). "
-                        "Is the board plugged in and the port right? Try --port /dev/ttyACM0. "
-                        "If the app runs and does not answer, see firmware/README.md, 'Recovery'.")
+        raise _Failed(cmd, (proc.stderr or proc.stdout).strip())
     return proc.stdout
+
+
+class _Failed(Exception):
+    def __init__(self, cmd, output):
+        super().__init__(output)
+        self.cmd = cmd
+        self.output = output
+
+    def detail(self) -> str:
+        return (self.output.splitlines()[-1:] or ["no output"])[0]
+
+
+def _link_error(e: _Failed) -> StidError:
+    return StidError(f"'{Path(e.cmd[0]).name} {' '.join(e.cmd[1:3])}' failed ({e.detail()}). "
+                     "Is the board plugged in and the port right? Try --port /dev/ttyACM0. "
+                     "If the app runs and does not answer, see firmware/README.md, 'Recovery'.")
+
+
+def _copy_error(e: _Failed) -> StidError:
+    if re.search(r"ENOSPC|No space left|Errno 28", e.output):
+        return StidError("the board's filesystem is full: the copy stopped half way. main.py was removed "
+                         "first, so the board boots to the REPL: remove files you do not need "
+                         "('mpremote fs ls', 'mpremote fs rm FILE') and flash again.")
+    return StidError(f"the copy stopped half way ({e.detail()}). main.py was removed first, so the "
+                     "board boots to the REPL and can be flashed again: check the cable and run "
+                     "the same stid flash command.")
 
 
 def send_escape(port: str, board: str) -> None:
@@ -160,73 +390,71 @@ def send_escape(port: str, board: str) -> None:
     time.sleep(2.5)  # reset, main.py's 1 s window, safe boot
 
 
-def check_micropython(text: str, board: str) -> tuple[tuple[int, int, int], str]:
-    """Parse the board's answer; refuse below 1.23; return (version, note)."""
-    m = re.search(r"STIDVER (\d+) (\d+) (\d+) (\w+)", text)
-    if not m:
-        raise StidError("the board did not report its MicroPython version: is it running MicroPython? "
-                        "Flash MicroPython first (https://micropython.org/download/).")
-    ver = tuple(int(x) for x in m.groups()[:3])
-    shown = ".".join(map(str, ver))
-    if ver[:2] < MIN_MICROPYTHON:
-        raise StidError(f"the board runs MicroPython {shown}; the compiled firmware (.mpy 6.3) needs "
-                        f"{'.'.join(map(str, MIN_MICROPYTHON))} or newer: update MicroPython on the board.")
-    note = ""
-    if board == "pico" and ver[:2] < HARD_TIMER_MICROPYTHON:
-        note = (f"note: MicroPython {shown} has no hard timers on rp2 (1.26+): the sampler runs "
-                "scheduled, so samples are late by up to a frame write and some periods may be "
-                "missed (counted in STATUS `missed`; HELLO says timer 'soft'). Update for fixed-rate sampling.")
-    return ver, note
-
-
-def verify(text: str, files: list[Path]) -> None:
-    got = dict(re.findall(r"STIDSHA (\S+) ([0-9a-f]{64})", text))
-    bad = [f.name for f in files if got.get(f.name) != hashlib.sha256(f.read_bytes()).hexdigest()]
-    if bad:
-        raise StidError(f"the copy on the board differs from the build for {', '.join(bad)}: "
-                        "flash again; if it persists the board's filesystem may be full or damaged.")
-
-
 def flash(board: str, port: str | None = None, dry_run: bool = False, rate_hz: int = 500,
-          batch: int = 10, out=None) -> int:
+          batch: int = 10, wheels: int = 1, build_dir: Path | None = None, out=None) -> int:
     out = out or sys.stdout
     if board not in ARCH:
         raise StidError(f"unknown board {board!r}: choose one of {', '.join(ARCH)}")
-    budget = check_link(board, rate_hz, batch)
-    build_dir = Path(tempfile.mkdtemp(prefix="stid-flash-"))
-    cmds = plan(board, port, build_dir, rate_hz, batch)
-    connect = ["connect", port] if port else ["connect", "auto"]
-    print(f"# firmware for {board} ({ARCH[board]}), {rate_hz} Hz, {batch} samples per frame", file=out)
-    print(f"# link: {budget}", file=out)
-    if port:
-        print(f"# send {ESCAPE.decode()!r} on {port} at {LINKS[board].baud or 'any'} baud (a running app "
-              "reboots into safe mode)", file=out)
-    else:
-        print("# no --port: no escape is sent; if the app is running, mpremote cannot stop it "
-              "(firmware/README.md, 'Recovery')", file=out)
-    print(f"# ask the board: {shlex.join([_tool('mpremote'), *connect, 'exec', _VERSION_SCRIPT])}", file=out)
-    print(f"# write {build_dir / 'config.py'}:", file=out)
-    for line in config_text(board, rate_hz, batch).splitlines():
-        print(f"#   {line}", file=out)
-    for cmd in cmds:
-        print(shlex.join(cmd), file=out)
+    budget = check_link(board, rate_hz, batch, wheels)
     if dry_run:
-        shutil.rmtree(build_dir, ignore_errors=True)
+        # a folder that outlives the command: the printed plan is run later, as printed
+        build_dir = Path(build_dir or f"stid-flash-{board}").resolve()
+        out.write(plan_script(board, port, build_dir, rate_hz, batch, wheels, budget))
         return 0
+    keep = build_dir is not None
+    build_dir = Path(build_dir) if keep else Path(tempfile.mkdtemp(prefix="stid-flash-"))
+    build_dir.mkdir(parents=True, exist_ok=True)
+    steps = {s.kind: s for s in plan(board, port, build_dir, rate_hz, batch, wheels)}
+    print(f"# firmware for {board} ({ARCH[board]}), {rate_hz} Hz, {batch} samples per frame, "
+          f"{wheels} hall sensor{'s' if wheels > 1 else ''}", file=out)
+    print(f"# link: {budget}", file=out)
     try:
+        for step in plan(board, port, build_dir, rate_hz, batch, wheels):
+            if step.kind == "compile":
+                try:
+                    _run(step.cmd)
+                except _Failed as e:
+                    raise StidError(f"mpy-cross could not compile {Path(step.cmd[-1]).name}: {e.detail()}") from None
+        (build_dir / "config.py").write_text(config_text(board, rate_hz, batch, wheels))
+        files = [build_dir / f"{m}.mpy" for m in COMPILED_MODULES] + [build_dir / "config.py"]
+        main_py = FIRMWARE_DIR / "main.py"
         if port:
             send_escape(port, board)
-        _, note = check_micropython(_run([_tool("mpremote"), *connect, "exec", _VERSION_SCRIPT]), board)
+        try:
+            facts = parse_probe(_run(steps["probe"].cmd), board, port)
+        except _Failed as e:
+            raise _link_error(e) from None
+        note = check_micropython(facts.version, board)
         if note:
             print(note, file=out)
-        (build_dir / "config.py").write_text(config_text(board, rate_hz, batch))
-        for cmd in cmds[:-2]:
-            _run(cmd)
-        files = [build_dir / f"{m}.mpy" for m in COMPILED_MODULES] + [FIRMWARE_DIR / "main.py",
-                                                                       build_dir / "config.py"]
-        verify(_run(cmds[-2]), files)
-        _run(cmds[-1])
+        print(f"# heap: {check_heap(rate_hz, batch, wheels, facts.mem_free)}", file=out)
+        check_filesystem(facts.fs_free, files + [main_py])
+        try:
+            _run(steps["prepare"].cmd)
+        except _Failed as e:
+            raise _link_error(e) from None
+        for copy, check in (("copy", "hash"), ("copy_main", "hash_main")):
+            try:
+                _run(steps[copy].cmd)
+            except _Failed as e:
+                raise _copy_error(e) from None
+            try:
+                verify(_run(steps[check].cmd), files if copy == "copy" else [main_py])
+            except _Failed as e:
+                raise _copy_error(e) from None
+            if copy == "copy":
+                try:
+                    check_readback(_run(steps["readback"].cmd))
+                except _Failed as e:
+                    check_readback(e.output)  # the import's error, in the message
+        try:
+            _run(steps["reset"].cmd)
+        except _Failed as e:
+            raise _link_error(e) from None
     finally:
-        shutil.rmtree(build_dir, ignore_errors=True)
-    print(f"flashed {board}, copies verified (SHA-256); the firmware starts on reset", file=out)
+        if not keep:
+            shutil.rmtree(build_dir, ignore_errors=True)
+    fw, proto = local_versions()
+    print("flashed %s: firmware %d.%d.%d, protocol %d read back, copies verified (SHA-256); "
+          "the firmware starts on reset" % (board, *fw, proto), file=out)
     return 0

@@ -110,7 +110,7 @@ def check_kinematics(run, source: str = "csv") -> None:
     """
     est = _kinematic_gains(run)
     if isinstance(est, str):
-        if source == "csv":
+        if source in ("csv", "ros"):
             run.warn(f"the units and signs of ay and r could not be checked against vx*r: {est}")
         return
     gain, steer_sign = est
@@ -124,6 +124,9 @@ def check_kinematics(run, source: str = "csv") -> None:
         raise InputError(_sign_message(where, source, steer_sign))
     for ratio, what, fix in _UNIT_ERRORS:
         if abs(math.log(abs(gain) / ratio)) < math.log(_UNIT_MATCH):
+            if source == "ros" and gain > 0 and what in _ROS_UNIT_FIX:
+                raise InputError(f"{where}: ay is {gain:.3g} x vx*r where physics wants ~1: {what}; "
+                                 f"{_ROS_UNIT_FIX[what]}")
             if source == "csv":
                 if gain < 0:
                     flipped = {1: "'ay'", -1: "'r'"}.get(steer_sign, "'ay' or 'r'")
@@ -131,9 +134,25 @@ def check_kinematics(run, source: str = "csv") -> None:
                 raise InputError(f"{where}: ay is {gain:.3g} x vx*r where physics wants ~1: {what}; {fix}")
             break
     raise InputError(f"{where}: ay is {gain:.3g} x vx*r where physics wants ~1 (ay = dvy/dt + vx*r): a unit or "
-                     "sign is wrong; " + ("the CSV contract wants ay in m/s^2, r in rad/s, vx in m/s, left positive"
-                                          if source == "csv" else
-                                          "check the sensor calibration in the vehicle file and the HELLO"))
+                     "sign is wrong; " + {"csv": "the CSV contract wants ay in m/s^2, r in rad/s, vx in m/s, left "
+                                                 "positive",
+                                          "ros": "check the vehicle file's [ros] imu_axes, accel_unit and gyro_unit "
+                                                 "(docs/ros.md)"}.get(source, "check the sensor calibration in the "
+                                                                              "vehicle file and the HELLO"))
+
+
+# a ROS IMU in the units the VESC driver sends: the [ros] key that says so
+_ROS_UNIT_FIX = {"'r' looks like it is in deg/s": "add gyro_unit = \"deg/s\" to the vehicle file's [ros]",
+                 "'ay' looks like it is in g": "add accel_unit = \"g\" to the vehicle file's [ros]",
+                 "'ay' and 'r' look like they are in g and deg/s":
+                     "add accel_unit = \"g\" and gyro_unit = \"deg/s\" to the vehicle file's [ros]"}
+
+
+def ay_gain(run):
+    """The least-squares gain of ay on vx*r over the run's slow part (~1 for consistent
+    units and signs), or a sentence saying why the run does not tell."""
+    est = _kinematic_gains(run)
+    return est if isinstance(est, str) else est[0]
 
 
 def _kinematic_gains(run):
@@ -176,6 +195,9 @@ def _kinematic_gains(run):
 # describe the run either, so in every case a fit would be nonsense.
 
 def _sign_message(where, source, steer_sign) -> str:
+    if source == "ros":
+        return (f"{where}: the yaw rate and the lateral acceleration have opposite signs (ay ~ -vx*r): the IMU's "
+                "axes are declared wrong; fix [ros] imu_axes in the vehicle file (docs/ros.md)")
     if source != "csv":
         return (f"{where}: the yaw rate and the lateral acceleration have opposite signs (ay ~ -vx*r); "
                 "check how the sensor board is mounted (gyro or accelerometer upside down?)")
@@ -190,6 +212,10 @@ def _sign_message(where, source, steer_sign) -> str:
 
 
 def _steer_message(where, source) -> str:
+    if source == "ros":
+        return (f"{where}: the car turns right when steered left (r against steer): the steering command's sign is "
+                "the other way; for a servo command negate [steering] gain, for an IMU mounted upside down fix "
+                "[ros] imu_axes")
     if source != "csv":
         return (f"{where}: the car turns right when steered left (r against steer): the steering calibration "
                 "has the wrong sign; negate us_per_rad in the vehicle file's [steering]")

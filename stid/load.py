@@ -13,6 +13,7 @@ from host.mcap_scan import holds_a_log
 from host import units
 from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
+from stid.ros import bag as ros_bag, topic_files
 from stid.run import Run
 from stid.vehicle_file import Vehicle, default_vehicle
 
@@ -76,8 +77,15 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path} does not exist")
+    topic_csvs = path.is_dir() and vehicle is not None and topic_files.names_files(vehicle.ros)
+    if ros_bag.kind_of(path) or topic_csvs:  # told by content: a ROS 2 MCAP shares its magic with a stid-log one
+        from stid.ros.to_run import load_bag
+
+        return load_bag(path, vehicle)
     if path.is_dir():
-        raise InputError(f"{path} is a directory; give the run files (RUN.mcap or RUN.csv)")
+        raise InputError(f"{path} is a directory (and not a ROS 2 bag: no metadata.yaml); give the run files "
+                         "(RUN.mcap, RUN.bag or RUN.csv), or for one CSV per topic name them in the vehicle file's "
+                         "[ros] (docs/ros.md)")
     if path.stat().st_size == 0:
         raise InputError(f"{path} is empty")
     if holds_a_log(path):
@@ -88,26 +96,31 @@ def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     if path.suffix.lower() == ".toml":  # the mirror of a run given as --vehicle
         raise InputError(f"{path} is a vehicle file, not a run: give the runs (RUN.mcap or RUN.csv) first and "
                          "the vehicle file after --vehicle")
-    run = load_csv(path)
+    run = load_csv(path, vehicle)
     run.meta["sensor_chain"] = sensor_chain.from_vehicle(vehicle)
     return [run]
 
 
 # -- CSV ------------------------------------------------------------------------
 
-def load_csv(path) -> Run:
-    import pandas as pd  # only CSV needs it (and it costs a quarter second to import)
+def load_csv(path, vehicle: Vehicle | None = None) -> Run:
+    """A CSV run: the import contract's columns, or the vehicle file's ``[csv]`` map of them
+    (stid.csv_map); a steering column in servo units through its ``[steering]`` map."""
+    import pandas as pd
+
+    from stid import csv_map
 
     path = Path(path)
-    try:
-        df = pd.read_csv(path)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise InputError(f"{path} is neither an MCAP file nor a readable CSV ({str(e).strip()})") from None
-    df.columns = [str(c).strip() for c in df.columns]
+    df, sep, decimal = csv_map.read(path, "neither an MCAP file nor a readable CSV")
+    table = vehicle.csv if vehicle is not None else {}
+    df = csv_map.apply(df, table, str(path))
     missing = [c for c in REQUIRED if c not in df.columns]
     if missing:
-        raise InputError(f"{path} lacks the column(s) {', '.join(missing)}; the CSV contract needs "
-                         f"{', '.join(REQUIRED)} (SI units: s, rad, m/s^2, rad/s, m/s)")
+        read_as = "" if sep == "," else f" (read as {csv_map.describe(sep, decimal)})"
+        raise InputError(f"{path} lacks the column(s) {', '.join(missing)}; its columns{read_as}: "
+                         f"{', '.join(df.columns[:12])}{' ...' if len(df.columns) > 12 else ''}. The CSV contract needs "
+                         f"{', '.join(REQUIRED)} (SI units: s, rad, m/s^2, rad/s, m/s); map yours with a [csv] table "
+                         "in the vehicle file, e.g. ay = \"-imu_ax\" (docs/ros.md)")
     if len(df) < MIN_SAMPLES:
         raise InputError(f"{path} has only {len(df)} rows; a run needs at least {MIN_SAMPLES} samples")
     cols = {}
@@ -119,9 +132,14 @@ def load_csv(path) -> Run:
             raise InputError(f"{path}: column '{c}' has {int(bad.sum())} missing or non-numeric value(s) "
                              f"(first at data row {first + 1}); fill or drop those rows")
         cols[c] = x
+    from stid.steer_units import road_wheel_angle
+
+    fs = 1.0 / float(np.median(np.diff(cols["t"]))) if np.all(np.diff(cols["t"]) > 0) else 100.0
+    cols["steer"], steer_notes, steer_warnings = road_wheel_angle(cols["steer"], cols["r"], cols["vx"], cols["ay"],
+                                                                  fs, vehicle, str(path))
     _check_units(path, cols)
     t = cols.pop("t")
-    warnings = []
+    warnings = list(steer_warnings)
     dt = np.diff(t)
     if np.any(dt <= 0):
         raise InputError(f"{path}: time 't' is not increasing (row {int(np.flatnonzero(dt <= 0)[0]) + 2}); "
@@ -129,7 +147,10 @@ def load_csv(path) -> Run:
     input_checks.check_time_steps(str(path), t)
     med = float(np.median(dt))
     valid = None
-    notes = []
+    notes = list(steer_notes)
+    if sep != "," or table:
+        notes.append(f"read as {csv_map.describe(sep, decimal)}"
+                     + (f", columns mapped by the vehicle file's [csv] ({', '.join(table)})" if table else ""))
     if np.max(np.abs(dt - med)) > 0.05 * med:
         tu = t[0] + med * np.arange(int(round((t[-1] - t[0]) / med)) + 1)
         for k in cols:
@@ -324,6 +345,9 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
                     "sensor_chain": sensor_chain.from_hello(hello, vehicle)},
               valid=valid)
     run.meta["steer_timing"] = "servo pulse edges" if timed else "sample instants"
+    late_edges = scheduled_steer_note(hello)
+    if late_edges:
+        run.meta.setdefault("notes", []).append(late_edges)
     if not timed:
         run.meta.setdefault("notes", []).append(
             "steer timed at the sample instants (this log does not carry the servo pulses' edge times, "
@@ -350,3 +374,16 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
                                "wheel_radius": vehicle.wheel_radius, "sensors": vehicle.sensors,
                                "gyro_bias_rad_s": bias}
     return run
+
+
+def scheduled_steer_note(hello: dict) -> str | None:
+    """A note for a log whose steering pulses an ESP32 timed with pin callbacks: those are
+    scheduled there (ports/esp32/machine_pin.c), so an edge is timed when its callback
+    runs, after any UART write, and is lost when the scheduler queue is full. Firmware
+    0.3.2 times them with the pulse counter (HELLO capture.servo "pcnt")."""
+    if hello.get("board") != "esp32" or (hello.get("capture") or {}).get("servo", "irq") != "irq":
+        return None
+    return ("steering pulses timed by scheduled pin callbacks (ESP32 without the pulse counter): in a "
+            "simulation of the port 5% of the pulses were missed and 7% had widths off by more than "
+            "100 µs, their edges late by up to a frame write; flash firmware 0.3.2 or later (HELLO "
+            "capture.servo 'pcnt') for widths and edges to ±1 µs")

@@ -21,6 +21,8 @@ from __future__ import annotations
 PART_BANDWIDTH_HZ = {"ADXL335": 50.0, "LISY300AL": 88.0}
 VEHICLE_KEYS = {"ay": "accel_bandwidth_hz", "r": "gyro_bandwidth_hz"}
 CSV_NONE = "CSV: none declared"
+ROS_NONE = "ROS bag: none declared"
+_NONE = (CSV_NONE, ROS_NONE)
 HELLO_CHANNELS = {"ay": "ay", "r": "yaw"}
 
 
@@ -31,7 +33,7 @@ def _override(chain: dict, vehicle) -> dict:
         if key in sensors:
             chain[out] = max(float(sensors[key]), 0.0)
     if used:
-        keep = chain.get("source") if len(used) < len(VEHICLE_KEYS) and chain.get("source") != CSV_NONE else ""
+        keep = chain.get("source") if len(used) < len(VEHICLE_KEYS) and chain.get("source") not in _NONE else ""
         chain["source"] = (keep + "; " if keep else "") + f"vehicle file [sensors] {', '.join(used)}"
     return chain
 
@@ -57,10 +59,10 @@ def from_hello(hello: dict, vehicle) -> dict:
     return _override(chain, vehicle)
 
 
-def from_vehicle(vehicle) -> dict:
-    """The chain when the data declare none (a CSV; a model's default): the vehicle
-    file's [sensors], else no filter."""
-    return _override({"ay": 0.0, "r": 0.0, "source": CSV_NONE}, vehicle)
+def from_vehicle(vehicle, source: str = CSV_NONE) -> dict:
+    """The chain when the data declare none (a CSV, a ROS bag: ``source`` says which; a
+    model's default): the vehicle file's [sensors], else no filter."""
+    return _override({"ay": 0.0, "r": 0.0, "source": source}, vehicle)
 
 
 def undeclared_warnings(runs, vehicle) -> list:
@@ -70,12 +72,15 @@ def undeclared_warnings(runs, vehicle) -> list:
     sensors = getattr(vehicle, "sensors", None) or {}
     if all(k in sensors for k in VEHICLE_KEYS.values()):
         return []
-    csv = [r.name for r in runs if (r.meta.get("sensor_chain") or {}).get("source") == CSV_NONE]
+    csv = [r.name for r in runs if (r.meta.get("sensor_chain") or {}).get("source") in _NONE]
     if not csv:
         return []
-    return [f"{', '.join(csv[:3])}{' ...' if len(csv) > 3 else ''}: a CSV carries no sensor chain and the "
+    what = "a ROS bag" if all((r.meta.get("sensor_chain") or {}).get("source") == ROS_NONE for r in runs
+                              if r.name in csv) else "a CSV"
+    return [f"{', '.join(csv[:3])}{' ...' if len(csv) > 3 else ''}: {what} carries no sensor chain and the "
             "vehicle file declares none, so the model's outputs are not filtered. If the data are sensor "
-            "outputs (ADXL335 / LISY300AL, or from stid export / stid-sim --csv), declare their bandwidths "
+            "outputs (ADXL335 / LISY300AL, an IMU's digital low-pass, or from stid export / stid-sim --csv), "
+            "declare their bandwidths "
             "in the vehicle file ([sensors] accel_bandwidth_hz = 50, gyro_bandwidth_hz = 88 for the "
             "reference car); if they are truly unfiltered, declare 0 for both to say so"]
 

@@ -7,6 +7,8 @@ rear axle]; ``name`` is optional (the file's name otherwise). Optional tables:
 [steering]            # servo pulse -> front road-wheel angle
 center_us = 1500      # pulse width at straight ahead [us]
 us_per_rad = 1145.9   # pulse change per radian of road-wheel angle (left positive)
+offset = 0.5304       # a servo command in other units (0-1, +-1) at straight ahead ...
+gain = -1.2135        # ... and its change per radian: command = offset + gain * angle
 
 [wheel]
 radius = 0.045        # m, of the wheel carrying the hall magnet
@@ -22,12 +24,21 @@ gyro_bandwidth_hz = 88.0          # LISY300AL internal low-pass
 
 [params]              # initial values / bounds of model parameters, e.g.
 Cf = { init = 400.0, min = 20.0, max = 5000.0 }
+
+[csv]                 # a CSV not in the contract: contract column = source column or expression
+t = "time_ms * 0.001"
+ay = "-imu_ax"
+
+[ros]                 # ROS bags: topics and the IMU's mounting (docs/ros.md)
+imu = "/sensors/imu/raw"
+imu_axes = ["y", "-x", "z"]
 ```
 
 ``gyro_v_per_dps`` (gyro sensitivity [V per deg/s]) may also be set in ``[sensors]``.
 A sensor bandwidth of 0 means no filter. ``[params]`` names parameters of the base
 models (``Cf``, ``Cr``, ``Iz``; greybox ``Cx``, ``Cy``, ``CA``) or of a registered
-effect. Any other key or table is an error that names it and the nearest known key.
+effect. ``[csv]`` keys are contract columns (stid.csv_map), ``[ros]`` keys are listed in
+stid.ros.topic_map. Any other key or table is an error that names it and the nearest known key.
 """
 
 from __future__ import annotations
@@ -56,6 +67,8 @@ class Vehicle:
     pulses_per_rev: int = 1
     sensors: dict = field(default_factory=dict)
     params: dict = field(default_factory=dict)
+    csv: dict = field(default_factory=dict)
+    ros: dict = field(default_factory=dict)
     path: str | None = None
     raw: dict = field(default_factory=dict)
 
@@ -80,12 +93,14 @@ def _number(doc, key, where, positive=True):
 # A key nobody reads would be silently ignored, so it is an error instead.
 TOP_KEYS = ("name", "mass", "a", "b")
 TABLES = {
-    "steering": ("center_us", "us_per_rad"),
+    "steering": ("center_us", "us_per_rad", "offset", "gain"),
     "wheel": ("radius", "pulses_per_rev"),
     "sensors": ("accel_offset", "gyro_zero_v", "gyro_v_per_dps", "mount_roll", "mount_pitch",
                 "accel_bandwidth_hz", "gyro_bandwidth_hz"),
     "params": None,  # model parameter names: checked against the models (_check_params)
     "board": None,  # the board's HELLO, declared for a log none reached (host/hello_supply.py checks it)
+    "csv": None,  # contract column -> source expression (stid.csv_map checks it)
+    "ros": None,  # topics and IMU mounting of ROS bags (stid.ros.topic_map checks it)
 }
 PARAM_SPEC_KEYS = ("init", "min", "max")
 _NONNEGATIVE = ("accel_bandwidth_hz", "gyro_bandwidth_hz")  # Hz; 0 = no filter
@@ -186,11 +201,22 @@ def load_vehicle(path) -> Vehicle:
                 steer_center_us=float(st.get("center_us", DEFAULT_STEER_CENTER_US)),
                 steer_us_per_rad=float(st.get("us_per_rad", DEFAULT_STEER_US_PER_RAD)),
                 wheel_radius=float(wh.get("radius", 0.045)), pulses_per_rev=int(wh.get("pulses_per_rev", 1)),
-                sensors=dict(doc.get("sensors", {})), params=dict(doc.get("params", {})), path=str(path),
-                raw=doc)
+                sensors=dict(doc.get("sensors", {})), params=dict(doc.get("params", {})),
+                csv=dict(doc.get("csv", {})), ros=dict(doc.get("ros", {})), path=str(path), raw=doc)
     if v.steer_us_per_rad == 0:
         raise InputError(f"{where}: steering.us_per_rad must not be 0")
+    if ("gain" in st) != ("offset" in st):
+        have, lack = ("gain", "offset") if "gain" in st else ("offset", "gain")
+        raise InputError(f"{where}: [steering] has {have} but no {lack}: a servo command maps to the road-wheel "
+                         "angle by both (command = offset + gain * angle [rad])")
+    if st.get("gain") == 0:
+        raise InputError(f"{where}: [steering] gain must not be 0 (command change per radian of road-wheel angle)")
     _check_params(v.params, where)
+    from stid.csv_map import check_table
+    from stid.ros.topic_map import check_table as check_ros
+
+    check_table(v.csv, where)
+    check_ros(v.ros, where)
     return v
 
 

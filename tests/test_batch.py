@@ -45,7 +45,7 @@ def test_batch_on_local_processes(season, tmp_path):
 def test_batch_without_runs_fails_cleanly(tmp_path):
     r = subprocess.run([tool("stid"), "batch", str(tmp_path / "nothing*.mcap"), "--vehicle", VEHICLE],
                        capture_output=True, text=True)
-    assert r.returncode != 0 and "no .mcap or .csv runs" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode != 0 and "no .mcap, .bag or .csv runs" in r.stderr and "Traceback" not in r.stderr
     # a table format it does not write is refused before any fitting (it wrote CSV text as .xlsx)
     x = subprocess.run([tool("stid"), "batch", str(tmp_path), "--vehicle", VEHICLE, "-o", str(tmp_path / "t.xlsx")],
                        capture_output=True, text=True)

@@ -59,6 +59,10 @@ def test_pulse_inputs_steer_timeout_and_hall_debounce(stimulus_file):
     _assert_passed(run_micropython(MP_TESTS / "mp_pulses.py", stimulus=stimulus_file, board=True))
 
 
+def test_reset_cause_tells_a_reset_asked_for_from_the_watchdog_and_kbd_intr_is_restored(stimulus_file):
+    _assert_passed(run_micropython(MP_TESTS / "mp_reset_cause.py", stimulus=stimulus_file, board=True))
+
+
 def test_escape_sequence_and_safe_boot(stimulus_file, tmp_path):
     # run in tmp_path: the safe-boot flag file is written to the working directory
     env = dict(os.environ, MICROPYPATH=f"{BOARD}:{MP_TESTS}:{FIRMWARE}", STID_SIM_STIMULUS=str(stimulus_file))

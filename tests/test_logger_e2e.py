@@ -175,9 +175,9 @@ def test_unplug_and_replug_resumes_in_the_same_file(tmp_path):
 
 
 def test_a_car_restart_is_said_live_and_in_the_summary(tmp_path):
-    """A host stall past the car's 2 s watchdog restarts the car: the summary said '0 samples
+    """A car whose sampler stops is restarted by its 2 s watchdog: the summary said '0 samples
     missing ... 0 unplug gaps' with a 2 s hole in the run and nothing live."""
-    sim = Sim("--duration", 5, "--still", 0.5, "--seed", 10, "--stall", "1.5:2.5")
+    sim = Sim("--duration", 5, "--still", 0.5, "--seed", 10, "--car-fault", "1.5")
     out = tmp_path / "run.mcap"
     lg = start_logger(sim.port, out, "--duration", 60)
     sim.wait()

@@ -1,5 +1,5 @@
-"""The effects an RC car has (steering_nonlinearity, locked_diff, sensor_delay) and the
-stage for forces and moments on the body.
+"""The effects an RC car has (steering_nonlinearity, locked_diff, sensor_delay, steer_offset,
+gyro_scale) and the stage for forces and moments on the body.
 
 Two kinds of evidence: each identifier-side effect recovers its parameter from data
 written here from plain physics (the single-track equations integrated by scipy, not
@@ -149,10 +149,15 @@ def _rc_truth(effect, runs) -> dict:
         return {"k_diff": car.Cx * car.track ** 2 / (4 * car.L)}
     if effect == "sensor_delay":
         return {"delay_s": car.sensor_delay_s}
+    if effect == "steer_offset":
+        return {"delta0": car.steer_trim}
+    if effect == "gyro_scale":
+        return {"k_gyro": car.gyro_sens_error}
     return {"k3": _truth_k3(runs)}
 
 
-@pytest.mark.parametrize("effect", ["locked_diff", "sensor_delay", "steering_nonlinearity"])
+@pytest.mark.parametrize("effect", ["locked_diff", "sensor_delay", "steering_nonlinearity", "steer_offset",
+                                    "gyro_scale"])
 def test_hidden_rc_effect_is_named_first_and_the_error_falls_to_the_floor(simdir, rc_vehicle, effect):
     from simdata import TRUTH, random_steer_pair
     from stid.diagnose import diagnose

@@ -17,10 +17,15 @@
 # around START_MANY).
 #
 # Hot path (latch, the readers): no allocation, every integer < 2^30 (RAM
-# addresses on the RP2040 are 0x2000_0000..0x2004_2000).
+# addresses on the RP2040 are 0x2000_0000..0x2004_2000); ticks are combined by
+# time.ticks_add / ticks_diff only.
+import time
+
 import uctypes
 from machine import mem32
 from micropython import const
+
+from codec import add30
 
 # RP2040 ADC registers (datasheet 4.9.6); above 2^30, so plain ints (big on the chip),
 # used only to start and stop
@@ -38,8 +43,6 @@ _DREQ_ADC = const(36)  # RP2040 (RP2350: 48, and another ADC base: not supported
 _RING_BITS = const(12)  # 4096-byte ring: 512 scans of 4 channels
 _FILLER_AIN = const(4)  # the temperature sensor input: pads a 3-channel scan to 4 (no pin)
 _COUNT = const(0x3FFFFFFF)  # transfers per DMA run (35 min at 2 us); the chain re-arms it
-_MASK30 = const(0x3FFFFFFF)
-_HALF30 = const(0x20000000)
 _TRANS_COUNT_TRIG = const(7)  # DMA channel register AL1_TRANS_COUNT_TRIG (offset 0x1C) / 4
 
 
@@ -146,12 +149,12 @@ class AdcScan:
         t_a = ticks_us()
         mem32[_CS] = cs | _CS_START_MANY
         t_b = ticks_us()
-        self.t0 = (t_a + (((t_b - t_a) & _MASK30) >> 1)) & _MASK30
+        self.t0 = time.ticks_add(t_a, time.ticks_diff(t_b, t_a) >> 1)
         # the scan for a period is the one that ends at least one scan before its nominal
         # instant (one scan of margin for the few us t0 is uncertain)
-        k = (((t_first_nominal - self.t0) & _MASK30) // self.scan_us) - 2
+        k = time.ticks_diff(t_first_nominal, self.t0) // self.scan_us - 2
         self._slot = k & (self.scans - 1)
-        self._t = (self.t0 + k * self.scan_us) & _MASK30
+        self._t = time.ticks_add(self.t0, k * self.scan_us)
 
     def stop(self):
         mem32[_CS] = _CS_EN
@@ -160,7 +163,7 @@ class AdcScan:
     def skip(self, periods):
         # periods with no sample (a soft timer's lost ticks): their scans are passed by
         self._slot = (self._slot + periods * self.per_period) & (self.scans - 1)
-        self._t = (self._t + periods * self.period_us) & _MASK30
+        self._t = time.ticks_add(self._t, periods * self.period_us)
 
     def latch(self, now):
         """Latch the scan of the current period (readers() read it); return its ticks.
@@ -168,7 +171,7 @@ class AdcScan:
         t = self._t
         slot = self._slot
         self.late_us = 0
-        age = ((now - t + _HALF30) & _MASK30) - _HALF30  # signed, as ticks_diff
+        age = time.ticks_diff(now, t)
         age = age // self.scan_us if age > 0 else 0  # scans since this one began
         if age >= self.scans - 4:  # overwritten (a soft timer ran very late): take the newest
             written = ((self._dma.write - self.base) >> 3) & (self.scans - 1)  # scan being filled
@@ -176,10 +179,10 @@ class AdcScan:
             laps = (age - back + (self.scans >> 1)) // self.scans
             newest = back + laps * self.scans - 1
             slot = (written - 1) & (self.scans - 1)
-            t = (t + newest * self.scan_us) & _MASK30
+            t = time.ticks_add(t, newest * self.scan_us)
             self.late_us = newest * self.scan_us
             self.late_scans += 1
         self.cur = slot << 3
         self._slot = (self._slot + self.per_period) & (self.scans - 1)
-        self._t = (self._t + self.period_us) & _MASK30
+        self._t = time.ticks_add(self._t, self.period_us)
         return t

@@ -3,11 +3,19 @@
 # only moves bytes, so a slow or absent host costs overruns (counted), never
 # a late sample.
 #
+# A host that stops reading loses only what the ring cannot hold: a frame's samples
+# leave the ring only once its write went through whole. A USB-CDC write the host
+# does not take gives up after ~500 ms and returns short (rp2,
+# shared/tinyusb/mp_usbd_cdc.c): the samples stay, the next frame starts with a
+# delimiter (the part that did go out is one bad frame to the host), and the loop
+# goes on to service(), so STATUS, the escape watch and the watchdog are not starved.
+#
 # It also keeps the board recoverable and alive: it feeds a watchdog only while
 # the sampler makes progress (an exception in a hard timer callback stops that
-# timer for good on rp2), and it watches its input for the escape line that
-# `stid flash` sends (ESCAPE), after which the board reboots into safe mode so
-# mpremote can reach the REPL (Ctrl-C is disabled while the app runs).
+# timer for good on rp2), never on the host's reading, and it watches its input
+# for the escape line that `stid flash` sends (ESCAPE), after which the board
+# reboots into safe mode so mpremote can reach the REPL (Ctrl-C is disabled while
+# the app runs).
 import json
 import os
 import struct
@@ -25,12 +33,14 @@ from pulses import HallCounter, ServoPulse
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = (0, 3, 1)
+FW_VERSION = (0, 3, 2)  # 0.3.2: issue 22 (31-bit integers, stale steer, long stops, host stalls, ESP32 servo by PCNT)
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
 _COMPACT_HELLO_PERIOD_MS = const(1000)
-_STEER_TIMEOUT_US = const(100000)
-_WDT_TIMEOUT_MS = const(2000)  # > the 1 s host stall the ring rides out; rp2 allows <= 8388 ms
+# a receiver's frame is 20 ms (some 11-22 ms): 50 ms rides out one lost pulse and marks the
+# steer stale within 3 frames of the receiver going off (the sampler reads every period)
+_STEER_TIMEOUT_US = const(50000)
+_WDT_TIMEOUT_MS = const(2000)  # fed before every write, which may block 500 ms; rp2 allows <= 8388 ms
 _ESCAPE_POLL_MS = const(100)
 _RING_SECONDS_X4 = const(5)  # the default ring holds 1.25 s: a 1 s host stall plus margin
 ESCAPE = b"STID-ESCAPE"  # on the input: stop, reboot into safe mode (`stid flash`)
@@ -76,7 +86,8 @@ def compact_hello(doc, timer_hard, sim, mp, uid):
     cap = doc.get("capture") or {"adc": "cpu", "servo": "irq"}
     body = struct.pack(codec.HELLO_C_FMT, int(doc["boot_id"], 16), _BOARD_CODES.get(doc["board"], 0),
                        (1 if timer_hard else 0) | (2 if sim else 0) | (4 if cap["adc"] == "dma" else 0)
-                       | (8 if cap["servo"] == "pio" else 0), doc["rate_hz"], doc["batch"],
+                       | (8 if cap["servo"] == "pio" else 0) | (16 if cap["servo"] == "pcnt" else 0),
+                       doc["rate_hz"], doc["batch"],
                        FW_VERSION[0], FW_VERSION[1], FW_VERSION[2], mp[0], mp[1], mp[2],
                        _RESET_CODES.get(doc["reset_cause"], 0), doc["adc"]["bits"],
                        0 if doc["adc"]["unit"] == "count" else 1, int(doc["adc"]["vref"] * 1000 + 0.5),
@@ -114,12 +125,18 @@ def _open_scan(profile, readers, period_us):
 
 def _open_servo(profile):
     """(steering pulse input, HELLO capture.servo): a PIO state machine on the RP2040,
-    else pin interrupts ("irq")."""
+    the pulse counter on the ESP32, else pin interrupts ("irq")."""
     if profile.get("servo_pio"):
         try:
             from servo_pio import ServoPulsePio
             return ServoPulsePio(profile["steer_pin"], _STEER_TIMEOUT_US), "pio"
         except (ImportError, AttributeError):  # no rp2 module / PIO: the pin IRQ below
+            pass
+    if profile.get("servo_clock_pin") is not None:
+        try:
+            from servo_pcnt import ServoPulsePcnt
+            return ServoPulsePcnt(profile["steer_pin"], _STEER_TIMEOUT_US, profile["servo_clock_pin"]), "pcnt"
+        except (ImportError, AttributeError, OSError):  # no esp32.PCNT, or its self-test failed
             pass
     return ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US), "irq"
 
@@ -174,7 +191,7 @@ class App:
             "steer": {"pin": profile["steer_pin"], "period_us": 20000, "timeout_us": _STEER_TIMEOUT_US},
             "wheels": wl,  # version 3 drops `wheel` (= wheels[0]): the host restores it
             "uid": boards.unique_id_hex(), "micropython": "%d.%d.%d" % mp,
-            "timer": None, "reset_cause": boards.reset_cause(), "link": link,
+            "timer": None, "reset_cause": boards.reset_cause(board), "link": link,
         }
         if adc_mode != "cpu" or servo_mode != "irq":  # absent: both by the CPU, as before 0.3.1
             self.hello["capture"] = {"adc": adc_mode, "servo": servo_mode}
@@ -185,6 +202,7 @@ class App:
         self.hello_period_ms = hello_period_s * 1000
         self.frames = 0
         self.tx_short = 0
+        self._cut = False  # the last write went out short: the next frame starts with a delimiter
         self._timer = None
         self._t_status = 0
         self._t_hello = 0
@@ -201,13 +219,26 @@ class App:
 
     # -- output -------------------------------------------------------------
     def _send(self, n):
-        # A USB-CDC port whose host stopped reading accepts part of a write after
-        # ~500 ms; the partial frame is caught by the receiver's CRC. Count it.
+        # Write the frame in enc.wire; True when it went out whole. A USB-CDC port whose
+        # host stopped reading takes part of it (or nothing) after ~500 ms: the part is
+        # caught by the receiver's CRC, counted here, and closed by a delimiter before
+        # the next frame.
+        self.feed_watchdog()  # the write may block ~500 ms
+        if self._cut:
+            self.sampler.t_free = time.ticks_us()
+            w = self._write(b"\x00")
+            if w is not None and w < 1:
+                self.tx_short = codec.add30(self.tx_short, 1)
+                return False
+            self._cut = False
         self.sampler.t_free = time.ticks_us()  # the scheduler queue is empty now
         w = self._write(self.enc.wire, n)
+        self.frames = codec.add30(self.frames, 1)
         if w is not None and w < n:
-            self.tx_short += 1
-        self.frames += 1
+            self.tx_short = codec.add30(self.tx_short, 1)
+            self._cut = True
+            return False
+        return True
 
     def send_hello(self):
         self._send(self.enc.hello(time.ticks_us(), self.hello_doc))
@@ -226,7 +257,8 @@ class App:
         r.peak = 0
 
     def pump(self, flush=False):
-        # Send every full batch waiting in the ring (and the partial rest if flushing).
+        # Send every full batch waiting in the ring (and the partial rest if flushing);
+        # stop at a write that did not go out whole: its samples stay in the ring.
         ring = self.ring
         enc = self.enc
         while True:
@@ -234,20 +266,27 @@ class App:
             if n == 0 or (n < self.batch and not flush and ring.fill() < self.batch):
                 return
             off = enc.samples_begin(time.ticks_us(), ring.first_index(), n, self.ftype)
-            ring.pop_into(enc.raw, off, n)
-            self._send(enc.finish(codec.SAMPLES_HEAD + n * self.record_size))
+            ring.copy_into(enc.raw, off, n)
+            seq = enc.seq
+            if not self._send(enc.finish(codec.SAMPLES_HEAD + n * self.record_size)):
+                enc.seq = seq  # sent again under its number: to the host one bad frame, none lost
+                return
+            ring.release(n)
 
     def service(self):
         now = time.ticks_ms()
-        if time.ticks_diff(now, self._t_status) >= _STATUS_PERIOD_MS:
-            self._t_status = now
-            self.send_status()
-        if time.ticks_diff(now, self._t_compact) >= _COMPACT_HELLO_PERIOD_MS:
-            self._t_compact = now
-            self.send_hello_compact()
-        if time.ticks_diff(now, self._t_hello) >= self.hello_period_ms:
-            self._t_hello = now
-            self.send_hello()
+        # while the host does not read (the last write went out short) only pump's retry
+        # knocks: each write costs 500 ms, and STATUS counts are cumulative (the next says it)
+        if not self._cut:
+            if time.ticks_diff(now, self._t_status) >= _STATUS_PERIOD_MS:
+                self._t_status = now
+                self.send_status()
+            if time.ticks_diff(now, self._t_compact) >= _COMPACT_HELLO_PERIOD_MS:
+                self._t_compact = now
+                self.send_hello_compact()
+            if time.ticks_diff(now, self._t_hello) >= self.hello_period_ms:
+                self._t_hello = now
+                self.send_hello()
         self.feed_watchdog()
         if self._poll is not None and time.ticks_diff(now, self._t_escape) >= _ESCAPE_POLL_MS:
             self._t_escape = now
@@ -380,10 +419,10 @@ def main(board=None, **kw):
         micropython.kbd_intr(-1)  # a 0x03 byte from the host must not be Ctrl-C
     except AttributeError:
         pass
-    if hasattr(micropython, "alloc_emergency_exception_buf"):
-        micropython.alloc_emergency_exception_buf(100)
-    app = App(board=board, control=sys.stdin.buffer, **kw)
     try:
+        if hasattr(micropython, "alloc_emergency_exception_buf"):
+            micropython.alloc_emergency_exception_buf(100)
+        app = App(board=board, control=sys.stdin.buffer, **kw)  # may raise (a bad config.py)
         app.run()
     finally:
         if hasattr(micropython, "kbd_intr"):

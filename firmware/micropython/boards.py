@@ -64,9 +64,12 @@ PROFILES = {
         "hall_debounce_us": 200,
         "safe_pin": 0,  # the DevKit's BOOT button, read after reset
         # no hardware scan: the ESP32's ADC DMA (I2S/"continuous" mode) is not exposed by
-        # MicroPython; servo pulses by pin IRQ: MicroPython's esp32.RMT is transmit-only
+        # MicroPython
         "adc_scan": False,
         "servo_pio": False,
+        # servo pulses timed by the pulse counter (servo_pcnt.py) against a 1 MHz clock the
+        # PWM puts on this pin (leave it unconnected); MicroPython's esp32.RMT is transmit-only
+        "servo_clock_pin": 18,
     },
 }
 
@@ -165,14 +168,36 @@ RESET_CAUSES = (("PWRON_RESET", "power_on"), ("HARD_RESET", "hard"), ("WDT_RESET
                 ("DEEPSLEEP_RESET", "deepsleep"), ("SOFT_RESET", "soft"))
 
 
-def reset_cause():
-    """Why the chip last reset, by name (the ports number their causes differently)."""
+# rp2 reads WDT_RESET after machine.reset() as well (an escape, mpremote, `stid flash`):
+# both go through the watchdog (ports/rp2/modmachine.c: watchdog_reboot; reset_cause is
+# watchdog_caused_reboot, any REASON bit on the RP2040). The pico-sdk tells them apart in
+# watchdog scratch register 4, which a reset keeps: watchdog_enable (machine.WDT) writes
+# WATCHDOG_NON_REBOOT_MAGIC there, watchdog_reboot(0, ...) writes 0
+# (src/rp2_common/hardware_watchdog/watchdog.c, watchdog_enable_caused_reboot).
+_WDT_SCRATCH4 = {"RP2040": 0x4005801C, "RP2350": 0x400D801C}  # WATCHDOG_BASE + 0x1C
+_WDT_NON_REBOOT_MAGIC = 0x6AB73121
+
+
+def _rp2_reset_was_asked_for():
+    import sys
+    chip = "RP2350" if "RP2350" in getattr(sys.implementation, "_machine", "") else "RP2040"
+    try:
+        return machine.mem32[_WDT_SCRATCH4[chip]] != _WDT_NON_REBOOT_MAGIC
+    except (AttributeError, OSError):
+        return False
+
+
+def reset_cause(board=None):
+    """Why the chip last reset, by name (the ports number their causes differently). On
+    a Pico (board "pico") a machine.reset() reads "soft", as on the ESP32, not "watchdog"."""
     try:
         code = machine.reset_cause()
     except AttributeError:
         return "unknown"
     for const_name, name in RESET_CAUSES:
         if getattr(machine, const_name, None) == code:
+            if name == "watchdog" and board == "pico" and _rp2_reset_was_asked_for():
+                return "soft"
             return name
     return "unknown"
 

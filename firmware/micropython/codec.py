@@ -31,6 +31,14 @@ STATUS_FMT = "<IIIIIHHHHIH"
 HELLO_C_FMT = "<IBBHB3B3BBBBHH" + "BH" * 5 + "HIBB4sBIHB"
 
 
+def add30(a, k):
+    # (a + k) mod 2^30 for a counter a in [0, 2^30) and 0 <= k < 2^30, without forming
+    # a + k: on a board (31-bit small ints) a value >= 2^30 is a heap-allocated big int,
+    # and in a hard interrupt that is a MemoryError
+    room = MASK30 - a
+    return a + k if k <= room else k - room - 1
+
+
 def _make_crc_table():
     table = bytearray(1024)
     for i in range(256):
@@ -118,7 +126,7 @@ class FrameEncoder:
         # Seal the frame whose body is raw[10:10+body_len]; return its wire length.
         n = HEADER_SIZE + body_len
         crc32_store(self.raw, n, CRC_TABLE)
-        self.seq = (self.seq + 1) & MASK30
+        self.seq = add30(self.seq, 1)
         return cobs_encode(self.raw, n + 4, self.wire)
 
     def hello(self, t_us, doc_bytes, ftype=HELLO):

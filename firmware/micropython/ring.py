@@ -1,7 +1,9 @@
 # Sample ring buffer between the sampler interrupt (producer) and the main loop
 # (consumer). Only the producer writes `head`, only the consumer writes `tail`,
 # so no lock is needed. A full ring drops the new sample and counts it: the
-# sampler never waits for a slow host.
+# sampler never waits for a slow host. The consumer copies records out (copy_into)
+# and releases them only once they are gone whole (release): a write the host did
+# not take leaves them in the ring, to be sent again.
 #
 # The producer packs a record straight into the ring: claim() gives the byte
 # offset of the next free slot (or -1 when full), the caller packs the record
@@ -10,7 +12,7 @@ import struct
 from array import array
 from micropython import const
 
-from codec import SAMPLE_SIZE, SAMPLE_FMT, copy_bytes
+from codec import SAMPLE_SIZE, SAMPLE_FMT, add30, copy_bytes
 
 _MASK30 = const(0x3FFFFFFF)
 
@@ -34,7 +36,7 @@ class SampleRing:
         # offset in buf where the record of sample `index` goes, or -1 (dropped).
         fill = (self.head - self.tail) & _MASK30
         if fill >= self.size:
-            self.overruns += 1
+            self.overruns = add30(self.overruns, 1)
             return -1
         slot = self.head % self.size
         self.index[slot] = index
@@ -43,7 +45,7 @@ class SampleRing:
         return slot * self.record_size
 
     def commit(self):
-        self.head = (self.head + 1) & _MASK30
+        self.head = add30(self.head, 1)
 
     def push(self, index, t_us, ax, ay, az, yaw, steer_us, wheel_count, wheel_t_us, vbat, steer_t_us):
         # A one-wheel record in one call (tests and simple callers).
@@ -68,7 +70,7 @@ class SampleRing:
             slot += 1
             if slot == self.size:
                 slot = 0
-            if self.index[slot] != (first + n) & _MASK30:
+            if self.index[slot] != add30(first, n):
                 break
             n += 1
         return n
@@ -76,8 +78,8 @@ class SampleRing:
     def first_index(self):
         return self.index[self.tail % self.size]
 
-    def pop_into(self, dst, offset, n):
-        # Copy the n oldest records to dst[offset:], then release them.
+    def copy_into(self, dst, offset, n):
+        # Copy the n oldest records to dst[offset:]; they stay in the ring (release).
         rs = self.record_size
         slot = self.tail % self.size
         first = self.size - slot
@@ -86,4 +88,7 @@ class SampleRing:
         copy_bytes(dst, offset, self.buf, slot * rs, first * rs)
         if n > first:
             copy_bytes(dst, offset + first * rs, self.buf, 0, (n - first) * rs)
-        self.tail = (self.tail + n) & _MASK30
+
+    def release(self, n):
+        # The n oldest records have left: their slots are free.
+        self.tail = add30(self.tail, n)

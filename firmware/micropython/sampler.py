@@ -17,13 +17,17 @@
 # the ADC at an instant fixed by its own clock: the interrupt only latches that
 # period's scan, and the record's time is the scan's, not the interrupt's. The
 # lateness is then the scan's (0 unless a very late soft call found it overwritten).
+#
+# Ticks are combined only by time.ticks_add / ticks_diff, counters wrap by add30:
+# on a board a small int holds 31 bits, and an intermediate >= 2^30 (t + period
+# before a mask) is a heap object -- in a hard interrupt, a MemoryError that stops
+# the timer for good (rp2).
 import struct
 import time
 from micropython import const
 
-from codec import SAMPLE_FMT, SAMPLE_SIZE, WHEELS3_FMT
+from codec import SAMPLE_FMT, SAMPLE_SIZE, WHEELS3_FMT, add30
 
-_MASK30 = const(0x3FFFFFFF)
 _FREE_MARGIN_US = const(200)  # a tick this close before t_free may still be queued
 
 
@@ -52,21 +56,21 @@ class Sampler:
 
     def arm(self, t_start):
         # The timer was started at t_start: its first tick is due one period later.
-        self._t_next = (t_start + self.period_us) & _MASK30
+        self._t_next = time.ticks_add(t_start, self.period_us)
         if self._scan is not None:
             self._scan.start(self._t_next, time.ticks_us)
 
     def isr(self, _timer):
-        t = time.ticks_us() & _MASK30
+        t = time.ticks_us()
         t_isr = t
         if self._t_next < 0:
             self._t_next = t
         old = time.ticks_diff(self.t_free, self._t_next) - _FREE_MARGIN_US
         if old >= 0 and time.ticks_diff(t, self.t_free) >= 0:  # ticks up to t_free were lost
             k = old // self.period_us + 1
-            self.index = (self.index + k) & _MASK30
-            self.missed += k
-            self._t_next = (self._t_next + k * self.period_us) & _MASK30
+            self.index = add30(self.index, k)
+            self.missed = add30(self.missed, k)
+            self._t_next = time.ticks_add(self._t_next, k * self.period_us)
             if self._scan is not None:
                 self._scan.skip(k)
         late = time.ticks_diff(t, self._t_next)
@@ -101,9 +105,9 @@ class Sampler:
                 struct.pack_into(WHEELS3_FMT, ring.buf, off + SAMPLE_SIZE, a.s_count, a.s_t,
                                  b.s_count, b.s_t, c.s_count, c.s_t)
             ring.commit()
-        self.index = (self.index + 1) & _MASK30
-        self._t_next = (self._t_next + self.period_us) & _MASK30
-        self.runs = (self.runs + 1) & _MASK30
+        self.index = add30(self.index, 1)
+        self._t_next = time.ticks_add(self._t_next, self.period_us)
+        self.runs = add30(self.runs, 1)
         d = time.ticks_diff(time.ticks_us(), t_isr)
         self.isr_last_us = d
         if d > self.isr_max_us:

@@ -25,9 +25,11 @@ import rp2
 from machine import Pin
 from micropython import const
 
+from codec import add30
 from pulses import ServoPulse
 
 _MASK30 = const(0x3FFFFFFF)
+_HALF30 = const(0x20000000)
 _MIN_PULSE_US = const(400)
 _MAX_PULSE_US = const(2600)
 _WIDTH_EXTRA_US = const(2)
@@ -85,7 +87,7 @@ class ServoPulsePio(ServoPulse):
         self._first = self.pin.value() == 1
         self._sm.active(1)
         t_b = time.ticks_us()
-        self.t0 = (t_a + (((t_b - t_a) & _MASK30) >> 1)) & _MASK30  # ticks when Y started
+        self.t0 = time.ticks_add(t_a, time.ticks_diff(t_b, t_a) >> 1)  # ticks when Y started
 
     def _drain(self):
         sm = self._sm
@@ -96,17 +98,18 @@ class ServoPulsePio(ServoPulse):
             if not _MIN_PULSE_US <= w <= _MAX_PULSE_US:
                 # a glitch, or a pair split by a full FIFO: drop one word, realign
                 if w < 0 or w > 30000:
-                    self.resyncs += 1
+                    self.resyncs = add30(self.resyncs, 1)
                     if sm.rx_fifo():
                         sm.get()
                 continue
             if self._first:
                 self._first = False
                 continue
-            self.w_prev = self.width
-            self.f_prev = self.t_fall
-            self.width = w
-            self.t_fall = (self.t0 + ((~fall) & _MASK30) - _FALL_LAG_US) & _MASK30
+            # us since Y started, mod 2^30, made signed: ticks_add takes |delta| < 2^29 only
+            d = ((~fall) & _MASK30) - _FALL_LAG_US
+            if d >= _HALF30:
+                d = d - _MASK30 - 1
+            self.new_pulse(w, time.ticks_add(self.t0, d))
 
     def read(self, now, before=-1):
         # the state machine's words become width and edge here; which pulse counts and

@@ -21,9 +21,43 @@ class Pin:
     def value(self, v=None):
         return _b.pin_level.get(self.id, self._idle)
 
-    def irq(self, handler=None, trigger=3, hard=False):
-        # every pin IRQ runs at once here (the firmware asks for hard ones)
-        _b.irq[self.id] = (handler, trigger, self)
+    def irq(self, handler=None, trigger=3, **kw):
+        # rp2: hard=True runs the handler in the interrupt (simboard: with the heap locked),
+        # else it is scheduled. ESP32: Pin.irq takes handler, trigger and wake only
+        # (ports/esp32/machine_pin.c); every pin callback is scheduled (simboard: the queue
+        # it shares with the timer).
+        hard = kw.pop("hard", None)
+        kw.pop("wake", None)
+        if kw or (hard is not None and _b.stim.board == "esp32"):
+            raise TypeError("unexpected keyword argument")
+        if handler is None:
+            _b.irq.pop(self.id, None)
+        else:
+            _b.irq[self.id] = (handler, trigger, self, bool(hard))
+
+
+class PWM:
+    # ESP32 only (esp32_hw.Esp32: the LEDC output as a clock for the pulse counters);
+    # the default duty is 50% (machine_pwm.c PWM_DUTY), the only one modelled
+    def __init__(self, dest, freq=None, duty_u16=None, **kw):
+        if _b.esp32 is None:
+            raise OSError("simulated board: PWM is only modelled on the esp32")
+        self._pin = dest if isinstance(dest, int) else dest.id
+        self.init(freq=freq, duty_u16=duty_u16, **kw)
+
+    def init(self, freq=None, duty_u16=None, **kw):
+        if kw or duty_u16 not in (None, 32768):
+            raise OSError("simulated PWM: only freq and a 50% duty are modelled")
+        self._freq = 5000 if freq is None else freq  # machine_pwm.c PWM_FREQ
+        _b.esp32.pwm_start(self._pin, self._freq)
+
+    def freq(self, f=None):
+        if f is None:
+            return self._freq
+        self.init(freq=f)
+
+    def deinit(self):
+        _b.esp32.pwm_stop(self._pin)
 
 
 class ADC:
@@ -74,8 +108,12 @@ class Timer:
         _b.timer_cb = None
 
 
+_WDT_SCRATCH4 = 0x4005801C
+
+
 class _Mem32:
-    # machine.mem32: only the RP2040 ADC registers exist here (rp2040_hw.Adc)
+    # machine.mem32: only the RP2040 ADC registers (rp2040_hw.Adc) and watchdog scratch
+    # register 4 exist here
     def _adc(self, addr):
         hw = _b.rp2040
         if hw is None or not 0x4004C000 <= addr < 0x4004C024:
@@ -83,9 +121,14 @@ class _Mem32:
         return hw.adc
 
     def __getitem__(self, addr):
+        if addr == _WDT_SCRATCH4 and _b.rp2040 is not None:
+            return _b.wdt_scratch4
         return self._adc(addr).read(addr)
 
     def __setitem__(self, addr, v):
+        if addr == _WDT_SCRATCH4 and _b.rp2040 is not None:
+            _b.wdt_scratch4 = v
+            return
         self._adc(addr).write(addr, v)
 
 
@@ -109,6 +152,8 @@ class WDT:
             raise ValueError("timeout exceeds 8388")  # rp2: 24-bit counter
         _b.wdt_timeout = timeout * 1000
         _b.wdt_fed = _b.now
+        if _b.stim.board == "pico":
+            _b.wdt_scratch4 = simboard.WDT_NON_REBOOT_MAGIC  # pico-sdk watchdog_enable
 
     def feed(self):
         _b.wdt_fed = _b.now
@@ -123,6 +168,17 @@ SOFT_RESET = 5
 
 def reset_cause():
     return _b.reset_cause
+
+
+def reset():
+    # rp2: watchdog_reboot(0, ...) writes 0 to watchdog scratch 4 and resets through the
+    # watchdog (reset_cause reads WDT_RESET); ESP32: esp_restart, SOFT_RESET
+    if _b.stim.board == "pico":
+        _b.wdt_scratch4 = 0
+        _b.reboot("watchdog")
+    else:
+        _b.reboot("soft")
+    raise simboard.MachineReset()
 
 
 def unique_id():

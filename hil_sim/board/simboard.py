@@ -13,6 +13,11 @@
 #   their callback (mp_sched_schedule). The queue holds MICROPY_SCHEDULER_DEPTH = 8
 #   entries; a tick that finds it full is lost without a trace. Queued callbacks run
 #   when the VM is between bytecodes: here, when a wait or a write returns.
+# - Pin IRQs on the ESP32 are scheduled too (ports/esp32/machine_pin.c,
+#   machine_pin_isr_handler: mp_sched_schedule, and Pin.irq takes no `hard`): each
+#   edge takes a place in the same 8-deep queue as the timer, in arrival order, and
+#   its handler runs when the VM gets to it, reading the pin as it is then. rp2 pin
+#   IRQs are hard when asked (hard=True) and scheduled otherwise.
 # - Output has the link's throughput: a write blocks until all but the TX buffer
 #   has left at the declared baud (ESP32 console UART: 115200 unless the firmware
 #   changes it; rp2 USB-CDC: ~1 MB/s). Hard interrupts fire during the block;
@@ -20,26 +25,40 @@
 # - Ticks wrap at 2^30 (time.py's ticks_diff and ticks_add behave as a board's).
 # - A hard ISR runs for `isr_us`; a pin edge during it is handled after it (the
 #   RP2040 gives pin and timer IRQs one priority), so its timestamp is late.
+# - A hard interrupt (rp2's hard timer and pin IRQs) runs with the heap locked, as
+#   on the board: an allocation in it is a MemoryError.
 # - An exception in a hard timer callback stops that timer for good (rp2
 #   alarm_callback); a machine.WDT not fed within its timeout resets the board
 #   (WatchdogReset; run_firmware.py boots the firmware again).
+# - A USB-CDC write whose host has stopped reading puts what fits in the 256-byte
+#   FIFO, waits 500 ms for room, and returns the count it took, short or 0
+#   (shared/tinyusb/mp_usbd_cdc.c, MICROPY_HW_USB_CDC_TX_TIMEOUT). On a UART the
+#   bridge drops what the host does not read; the write goes on.
+# - Reset cause: rp2 reads WDT_RESET after machine.reset() too; the pico-sdk leaves
+#   watchdog scratch 4 = 0 after machine.reset(), its magic after machine.WDT
+#   (wdt_scratch4, through machine.mem32).
 #
 # - On a Pico, the RP2040 peripherals the firmware programs directly (ADC registers
 #   through machine.mem32, rp2.DMA, a PIO state machine) are modelled in
 #   rp2040_hw.py; the PIO sees the servo edges at their true times, unlike IRQs.
+#   On an ESP32, the pulse counters and the PWM (esp32.PCNT, machine.PWM) are in
+#   esp32_hw.py: they count the edges at their true times.
 #
 # Nothing here may allocate while firing events: the firmware's allocation test
 # runs its sampler interrupt under micropython.heap_lock() through this code.
 import json
 import os
 
+import micropython
 import utime
 
+import esp32_hw
 import rp2040_hw
 import stimfile
 
 _MASK30 = 0x3FFFFFFF
 _FAR = 1 << 62
+_TIMER = -1  # a scheduler queue entry for the timer callback (others are pin numbers)
 # per board: the console link at power-on (baud None: USB-CDC, ~1 MB/s), its TX
 # buffer, the scheduler depth, the MicroPython version the board runs
 _BOARDS = {
@@ -47,11 +66,20 @@ _BOARDS = {
     "esp32": {"baud": 115200, "tx_buf": 128, "sched_depth": 8, "micropython": [1, 26, 0], "isr_us": 0},
 }
 _USB_BYTE_NS = 1000  # USB full speed CDC moves ~1 MB/s in practice (7-9 Mbit/s)
+_USB_TX_TIMEOUT_US = 500000  # MICROPY_HW_USB_CDC_TX_TIMEOUT (ports/rp2/mphalport.h)
 RESET_CAUSES = {"power_on": 1, "hard": 2, "watchdog": 3, "deepsleep": 4, "soft": 5}
 
 
 class WatchdogReset(Exception):
     pass
+
+
+class MachineReset(Exception):
+    # machine.reset(): the firmware asked for it
+    pass
+
+
+WDT_NON_REBOOT_MAGIC = 0x6AB73121  # pico-sdk watchdog_enable -> watchdog scratch 4
 
 
 class Board:
@@ -71,7 +99,7 @@ class Board:
         self.timer_cb = None
         self.timer_obj = None
         self.pin_level = {}
-        self.irq = {}  # pin number -> (handler, trigger mask, Pin object)
+        self.irq = {}  # pin number -> (handler, trigger mask, Pin object, hard)
         # steering servo edges: rising at the receiver's times, falling a width later
         self.steer_pin = s.h["steer_pin"]
         self.steer_k = 0
@@ -99,19 +127,30 @@ class Board:
         self.tx_bytes = 0
         self.sched_depth = opts["sched_depth"]
         self.timer_soft = False
-        self.sched_n = 0  # timer callbacks waiting in the scheduler queue
-        self.sched_lost = 0  # ticks that found the queue full (the truth a test checks)
+        # the scheduler queue (py/scheduler.c): a ring of entries in arrival order, each
+        # _TIMER or the pin number of a scheduled pin IRQ
+        self.sched_q = [0] * self.sched_depth
+        self.sched_i = 0  # oldest entry
+        self.sched_n = 0  # entries waiting
+        self.sched_lost = 0  # timer ticks that found the queue full (the truth a test checks)
+        self.sched_lost_pin = 0  # pin edges whose callback found the queue full
         self.isr_us = opts["isr_us"]
         self.busy_until = 0  # a hard ISR runs until then; pin edges wait
         self.adc_fault_at = opts.get("adc_fault_at_us", _FAR)  # one ADC read raises then
+        # the hard timer's callback fails once then (a fault not modelled otherwise): rp2 stops it
+        self.timer_fault_at = opts.get("timer_fault_at_us", s.h.get("timer_fault_us") or _FAR)
         self.timer_dead = False
         self.wdt_timeout = 0
         self.wdt_fed = 0
         self.resets = 0
         self.resetting = False
         self.reset_cause = RESET_CAUSES["power_on"]
+        self.wdt_scratch4 = 0  # RP2040 watchdog scratch register 4: kept by a reset
+        self.isr_errors = 0  # exceptions raised in hard interrupts (MemoryError: an allocation)
+        self.usb_fifo_free = self.tx_buf  # room in the USB-CDC TX FIFO while the host does not read
         # machine.unique_id(): the RP2040's flash id is 8 bytes, the ESP32's MAC 6
         self.rp2040 = rp2040_hw.Rp2040(self) if s.board == "pico" else None
+        self.esp32 = esp32_hw.Esp32(self) if s.board == "esp32" else None
         self.uid = bytes(opts.get("uid", [0xE6, 0x60, 0x38, 0xB7, 0x13, 0x3A, 0x2B, 0x2F][:8 if s.board == "pico" else 6]))
 
     def set_baud(self, baud):
@@ -126,31 +165,61 @@ class Board:
         return ((self.now + self.start_ticks) // 1000) & _MASK30
 
     # -- interrupts -----------------------------------------------------------
+    def _schedule(self, entry):
+        # mp_sched_schedule: queue it, or lose it (False) when the queue is full
+        if self.sched_n >= self.sched_depth:
+            return False
+        self.sched_q[(self.sched_i + self.sched_n) % self.sched_depth] = entry
+        self.sched_n += 1
+        return True
+
     def _timer_fires(self):
-        if self.timer_soft:  # mp_sched_schedule: queue it, or lose it
-            if self.sched_n < self.sched_depth:
-                self.sched_n += 1
-            else:
+        if self.timer_soft:
+            if not self._schedule(_TIMER):
                 self.sched_lost += 1
             return
         self._hw_sync()
-        try:
-            self.timer_cb(self.timer_obj)
-        except Exception as e:  # rp2: "Uncaught exception; don't run the callback again"
+        if self.now >= self.timer_fault_at:
+            self.timer_fault_at = _FAR
+            e = RuntimeError("simboard: injected fault in the timer callback")
+        else:
+            e = self._hard_irq(self.timer_cb, self.timer_obj)
+        if e is not None:  # rp2: "Uncaught exception; don't run the callback again"
             import sys
             sys.print_exception(e)
             self.timer_due = _FAR
             self.timer_dead = True
         self.busy_until = self.now + self.isr_us
 
+    def _hard_irq(self, handler, arg):
+        # a hard interrupt: the heap is locked while it runs; its exception, or None
+        micropython.heap_lock()
+        try:
+            handler(arg)
+            e = None
+        except Exception as x:  # noqa: BLE001 - whatever the board would catch
+            e = x
+        micropython.heap_unlock()
+        if e is not None:
+            self.isr_errors += 1
+        return e
+
     def run_scheduled(self):
-        # The VM is between bytecodes: run the queued soft-timer callbacks, each at
-        # the time it actually runs (late); an exception is printed and forgotten.
-        while self.sched_n > 0 and self.timer_cb is not None:
+        # The VM is between bytecodes: run the queued callbacks in arrival order, each
+        # at the time it actually runs (late); an exception is printed and forgotten.
+        while self.sched_n > 0:
+            entry = self.sched_q[self.sched_i]
+            self.sched_i = (self.sched_i + 1) % self.sched_depth
             self.sched_n -= 1
             self._hw_sync()
             try:
-                self.timer_cb(self.timer_obj)
+                if entry == _TIMER:
+                    if self.timer_cb is not None:
+                        self.timer_cb(self.timer_obj)
+                else:
+                    h = self.irq.get(entry)
+                    if h is not None:
+                        h[0](h[2])
             except Exception as e:
                 import sys
                 sys.print_exception(e)
@@ -185,6 +254,8 @@ class Board:
         self.irq.clear()
         if self.rp2040 is not None:  # a reset stops the ADC, DMA and PIO
             self.rp2040 = rp2040_hw.Rp2040(self)
+        if self.esp32 is not None:  # and the PWM and pulse counters
+            self.esp32 = esp32_hw.Esp32(self)
 
     def _next_steer(self):
         if self.steer_k >= self.stim.n_steer:
@@ -260,12 +331,20 @@ class Board:
             sm.edge(t, 0 if self.steer_high else 1)
 
     def _edge(self, pin_no, level):
+        if self.esp32 is not None:
+            self.esp32.pin_edge(pin_no, level)  # the counters see the level it had until now
         self.pin_level[pin_no] = level
         h = self.irq.get(pin_no)
         if h is not None:
-            handler, trig, pin = h
+            handler, trig, pin, hard = h
             if (level and trig & 1) or (not level and trig & 2):
-                handler(pin)
+                if hard:  # in the interrupt, the heap locked
+                    e = self._hard_irq(handler, pin)
+                    if e is not None:
+                        import sys
+                        sys.print_exception(e)
+                elif not self._schedule(pin_no):
+                    self.sched_lost_pin += 1
 
     def idle(self):
         # Wait for the next interrupt, as machine.idle() does on the car.
@@ -332,20 +411,32 @@ class Board:
         return v
 
     # -- output: throughput and stalls -----------------------------------------
-    def stall_if_due(self):
-        # A host that stops reading: on USB-CDC the write blocks (interrupts keep
-        # firing); a UART has no flow control, so the write goes on and the USB
-        # bridge drops what the host does not read. True while bytes are dropped.
-        if self.stall_i < len(self.stalls) and self.now >= self.stalls[self.stall_i][0]:
+    def stall_if_due(self, n):
+        # A host that stops reading. A UART has no flow control: the write goes on and
+        # the USB bridge drops what the host does not read (returns -1: all dropped).
+        # USB-CDC: the write puts what fits in the TX FIFO and waits up to 500 ms for
+        # room (interrupts keep firing); returns the bytes it took if it gives up
+        # first, or n if the host reads again in time.
+        while self.stall_i < len(self.stalls) and self.now >= self.stalls[self.stall_i][0]:
             at, d = self.stalls[self.stall_i]
-            if self.baud is not None:
-                if self.now < at + d:
-                    return True
+            if self.now >= at + d:  # over: the host has read the FIFO empty
                 self.stall_i += 1
-                return False
-            self.stall_i += 1
-            self.advance_to(self.now + d)
-        return False
+                self.usb_fifo_free = self.tx_buf
+                continue
+            if self.baud is not None:
+                return -1
+            took = n if n < self.usb_fifo_free else self.usb_fifo_free
+            self.usb_fifo_free -= took
+            if took == n:
+                return n
+            if at + d <= self.now + _USB_TX_TIMEOUT_US:
+                self.advance_to(at + d)
+                self.stall_i += 1
+                self.usb_fifo_free = self.tx_buf
+                return n
+            self.advance_to(self.now + _USB_TX_TIMEOUT_US)
+            return took
+        return n
 
     def transmit(self, n):
         # n bytes join the TX queue; the write returns when all but tx_buf bytes are
@@ -370,12 +461,13 @@ class Output:
             n = len(buf)
         if b.resetting:
             return n
-        dropped = b.stall_if_due()
-        b.transmit(n)
-        if dropped:
+        took = b.stall_if_due(n)
+        if took < 0:  # a UART: the bridge dropped them
+            b.transmit(n)
             b.run_scheduled()
             return n
-        r = self._w(buf, n)
+        b.transmit(took)
+        r = self._w(buf, took) if took else 0
         b.run_scheduled()  # back in the VM: queued callbacks run
         return r
 

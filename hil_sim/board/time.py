@@ -24,6 +24,9 @@ def ticks_diff(a, b):
 
 
 def ticks_add(t, delta):
+    # the ports refuse a delta that ticks_diff could not give back (extmod/modtime.c)
+    if not -_HALF < delta < _HALF:
+        raise OverflowError("ticks interval overflow")
     return (t + delta) & _MASK30
 
 

@@ -16,7 +16,11 @@ class SensorBias(Effect):
                "temperature: an offset left after the stand-still calibration adds a constant to "
                "every reading. It does not depend on steer, speed or frequency.")
     signature = ("the residuals have a non-zero mean (their spectrum peaks at 0 Hz) that does not "
-                 "correlate with steer")
+                 "correlate with steer; the gyro's offset shows in the kinematics too: r - ay/vx averages "
+                 "bias_r - bias_ay/vx, which a car's motion alone keeps at zero")
+    confused_with = {"steer_offset": "drive at a second speed: a sensor's offsets stay the same, a steering "
+                                     "trim's grow with speed and keep ay = vx r; or stand the car still after "
+                                     "the run, where a sensor's offset remains and a trim's vanishes"}
 
     def apply(self, sys, p, ctx):
         sys = sys.copy()

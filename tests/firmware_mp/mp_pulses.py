@@ -68,4 +68,51 @@ t_s = (end + 30000 + 1690) & 0x3FFFFFFF  # before the fall of the 1700 us pulse
 check(sp.read(time.ticks_us(), t_s) == 1200 and sp.t_read == (end + 10 + 1200) & 0x3FFFFFFF,
       "servo as of an earlier instant: the pulse before")
 check(sp.read(time.ticks_us()) == 1700, "servo as of the interrupt: the latest")
+
+# -- a stop of 9-18 min: ticks_diff over it is meaningless (only within 2^29 us) ----------
+# hall: the sampler snaps every period (every 50th here); the next edge after the stop
+# counts, and the count as of a sample instant never steps back while parked
+PIN = 42
+hc = HallCounter(PIN, 200)
+t = 20000000
+edge(hc, t, 0)
+stop = 0
+step_back = 0
+for minutes in (10, 15):
+    end_stop = t + minutes * 60 * 1000000
+    while t < end_stop:
+        t += 2000 * 50
+        b.now = t
+        hc.snap(time.ticks_us(), True)
+        step_back += hc.s_count != hc.count
+    edge(hc, t + 5, 0)
+    t += 5
+check(hc.count == 3, "edges after stops of 10 and 15 min are counted (%d of 3)" % hc.count)
+check(step_back == 0, "the count as of a sample instant never stepped back while parked (%d)" % step_back)
+# servo, as the Pico reads it (before = the sample's instant): stale for the whole outage
+sp = ServoPulse(43, 50000)
+PIN = 43
+t = 30000000
+edge(sp, t, 1)
+edge(sp, t + 1500, 0)
+edge(sp, t + 20000, 1)
+edge(sp, t + 21600, 0)
+bad = 0
+t_end = t + 19 * 60 * 1000000
+tt = t + 22000
+while tt < t_end:
+    b.now = tt
+    now = time.ticks_us()
+    w = sp.read(now, now - 10 if now >= 10 else 0)
+    if tt - (t + 21600) > 50000 + 2000 * 50 and w != 0:
+        bad += 1
+    tt += 2000 * 50
+check(bad == 0, "steer stays stale over a 19 min outage with before= (%d samples not)" % bad)
+# a pulse after the outage, read before its fall: the one from before the outage never returns
+edge(sp, t_end, 1)
+edge(sp, t_end + 1200, 0)
+b.now = t_end + 1210
+now = time.ticks_us()
+check(sp.read(now, now - 20) == 0, "the pulse before an outage is not the one in force after it")
+check(sp.read(now, now) == 1200, "the new pulse is")
 done()

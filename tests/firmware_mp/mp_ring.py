@@ -16,8 +16,11 @@ for i in range(6):
     push(i)
 check(r.fill() == 6 and r.run_length(10) == 6, "fill and run length")
 dst = bytearray(300)
-r.pop_into(dst, 0, 4)
-check(struct.unpack_from(codec.SAMPLE_FMT, dst, 3 * 26)[0] == 3000, "pop keeps order")
+r.copy_into(dst, 0, 4)
+check(r.fill() == 6 and r.first_index() == 0, "a copy releases nothing (the write may not complete)")
+r.release(4)
+check(r.fill() == 2 and r.first_index() == 4, "released once sent")
+check(struct.unpack_from(codec.SAMPLE_FMT, dst, 3 * 26)[0] == 3000, "copy keeps order")
 check(struct.unpack_from(codec.SAMPLE_FMT, dst, 3 * 26)[9] == 2997, "steer_t_us kept")
 for i in range(6, 12):  # wraps around the end of the buffer
     push(i)
@@ -26,7 +29,8 @@ push(12)
 push(13)
 check(r.overruns == 2 and r.fill() == 8, "overrun counted, sample dropped")
 check(r.first_index() == 4 and r.run_length(40) == 8, "run length over wrap")
-r.pop_into(dst, 5, 8)
+r.copy_into(dst, 5, 8)
+r.release(8)
 ts = [struct.unpack_from(codec.SAMPLE_FMT, dst, 5 + 26 * k)[0] for k in range(8)]
 check(ts == [1000 * i for i in range(4, 12)], "wrap-around copy in order")
 push(14)  # 12 and 13 were dropped: 14 follows a gap
@@ -37,6 +41,16 @@ r2.push(1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
 r2.push(3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
 check(r2.run_length(40) == 1, "a frame never spans an index gap")
 check(r.peak == 8, "peak fill")
+# counters near 2^30 wrap without ever forming 2^30 (a big int on a board)
+r3 = SampleRing(4)
+r3.head = r3.tail = codec.MASK30 - 1
+for i in range(3):
+    r3.push(i, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+check(r3.head == 1 and r3.fill() == 3, "head wraps at 2^30 (%d)" % r3.head)
+r3.release(3)
+check(r3.tail == 1 and r3.fill() == 0, "tail wraps at 2^30")
+check(codec.add30(codec.MASK30, 1) == 0 and codec.add30(5, 3) == 8 and codec.add30(codec.MASK30 - 2, 10) == 7,
+      "add30 is (a + k) mod 2^30")
 # four-wheel records: the producer packs into the claimed slot, the consumer copies 44 bytes
 r4 = SampleRing(4, codec.SAMPLE4_SIZE)
 for i in range(5):
@@ -47,6 +61,7 @@ for i in range(5):
         r4.commit()
 check(r4.overruns == 1 and r4.fill() == 4, "four-wheel ring full, one dropped")
 dst4 = bytearray(4 * codec.SAMPLE4_SIZE)
-r4.pop_into(dst4, 0, 4)
+r4.copy_into(dst4, 0, 4)
+r4.release(4)
 check(struct.unpack_from(codec.WHEELS3_FMT, dst4, 3 * 44 + 26) == (3, 30, 0, 0, 0, 21), "four-wheel record kept")
 done()

@@ -1,0 +1,349 @@
+"""A ROS bag as runs: the chosen topics timed by their header stamps, cut to the time
+all of them cover, brought onto one uniform grid, the IMU turned into the car's axes.
+
+What is done to the data is said in the run's notes: which topic gave what, the grid
+and how each signal reached it (measurements interpolated linearly; a command held
+until the next one, as the servo holds it), whether the accelerometer holds gravity,
+the gyro zero taken from the stand-still.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from stid import convert, input_checks, sensor_chain
+from stid.errors import InputError
+from stid.ros import topic_map
+from stid.ros.bag import Bag
+from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
+from stid.run import Run
+
+G = 9.81
+# A sensor topic's silence is marked not measured (left out of every cost, the model running
+# through it on the known command); a longer one cuts the run: after 0.5 s (several yaw time
+# constants) the car's state is forgotten anyway. The command topic's silences cut nothing:
+# the servo holds its last command until the next arrives.
+SENSOR_CUT_S = 0.5
+MIN_SAMPLES = 20
+GAP_PERIODS = 2.5  # a step this many median periods long lost messages
+
+
+def load_bag(path, vehicle) -> list[Run]:
+    path = Path(path)
+    where = str(path)
+    table = vehicle.ros if vehicle is not None else {}
+    choice, cols = _read(path, table, vehicle, where)
+    notes = list(choice.notes)
+    parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
+    stamps_ns = {topic: _stamps(cols[topic], topic, table.get("stamps", "header") == "header", notes, where)
+                 for topic in parts.values()}
+    # seconds from the first stamp: epoch nanoseconds as float64 would keep only ~0.2 us
+    origin = min(int(t[0]) for t in stamps_ns.values())
+    times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
+    rate = float(table.get("rate_hz") or 0.0) or 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
+    grid = _grid(times, choice.imu, rate, where)
+    warnings = []
+    sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings)
+    sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
+    valid = _measured(grid, sensors)
+    notes.insert(0, _grid_note(parts, times, rate, grid, choice))
+    quiet = np.diff(times[choice.steering]) > SENSOR_CUT_S
+    if quiet.any():
+        notes.append(f"{choice.steering} was silent {int(quiet.sum())} time(s), up to "
+                     f"{np.diff(times[choice.steering]).max():.1f} s: the servo holds its last command, so the "
+                     "command is held there too")
+    runs = []
+    for k, (a, b) in enumerate(_pieces(grid, sensors)):
+        if b - a < MIN_SAMPLES:
+            continue
+        cut = {key: v[a:b] for key, v in sig.items()}
+        meta = {"source": where, "format": "ros", "fs": rate, "notes": list(notes) if not runs else [],
+                "sensor_chain": sensor_chain.from_vehicle(vehicle, sensor_chain.ROS_NONE), "topics": dict(parts),
+                # the stamp [ns] of the run's t = 0, to line it up with other data
+                "stamp0_ns": origin + int(round(grid[a] * 1e9)),
+                "imu_tilt": tilt}  # mount_roll, mount_pitch [rad] from the stand-still (stid calibrate)
+        runs.append(Run(name=path.name if k == 0 else f"{path.name}#{k + 1}", t=grid[a:b] - grid[a],
+                        steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"], ax=cut["ax"], meta=meta,
+                        valid=None if valid[a:b].all() else valid[a:b]))
+    if not runs:
+        raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
+                         f"{SENSOR_CUT_S:g} s in the IMU or the odometry")
+    for run in runs:
+        for w in warnings:
+            run.warn(w)
+        _gyro_zero(run)
+        _check(run, table, where)
+    return runs
+
+
+def _read(path, table, vehicle, where):
+    """The topic of each part, and the fields of those topics."""
+    servo_map = vehicle is not None and "gain" in vehicle.raw.get("steering", {})
+    with _open(path, table) as bag:
+        choice = topic_map.choose(bag.topics, table, servo_map, where, bag.listing())
+        wanted = {}
+        for part, topic in (("imu", choice.imu), ("odometry", choice.odometry), ("steering", choice.steering)):
+            if not bag.topics[topic].count:
+                raise InputError(f"{where}: the {topic_map.ROLE_WORDS[part]} topic {topic} holds no messages")
+            wanted.setdefault(topic, FIELDS[bag.topics[topic].msgtype])
+        cols = bag.read(wanted)
+    for topic, fields in wanted.items():
+        for f in fields:
+            bad = ~np.isfinite(cols[topic][f])
+            if bad.any():
+                raise InputError(f"{where}: {topic} has {int(bad.sum())} message(s) whose {f} is not a number (NaN or "
+                                 f"inf; the first is message {int(np.flatnonzero(bad)[0]) + 1} of {len(bad)}): a "
+                                 "driver that failed to read its sensor; cut those out of the bag")
+    return choice, cols
+
+
+def _grid(times, imu, rate, where) -> np.ndarray:
+    """Uniform instants over the time every topic covers, on the IMU's own instants where
+    those are uniform (its samples then reach the grid as they are)."""
+    t0 = max(t[0] for t in times.values())
+    t1 = min(t[-1] for t in times.values())
+    if t1 - t0 < MIN_SAMPLES / rate:
+        spans = ", ".join(f"{topic} {t[0]:.2f}-{t[-1]:.2f} s" for topic, t in times.items())
+        raise InputError(f"{where}: the topics do not overlap in time ({spans}, from the bag's first stamp): a run "
+                         "needs the IMU, the odometry and the steering command at once")
+    imu_t = times[imu]
+    t0 = float(imu_t[np.searchsorted(imu_t, t0 - 1e-9)])
+    return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
+
+
+def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings):
+    """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held. And the IMU's
+    tilt at rest (``_tilt``)."""
+    imu, imu_t = cols[choice.imu], times[choice.imu]
+    acc = np.vstack([imu["linear_acceleration." + a] for a in "xyz"])
+    gyro = np.vstack([imu["angular_velocity." + a] for a in "xyz"])
+    acc, gyro = _body_axes(acc, gyro, table, vehicle, where, notes)
+    sig = {"ax": np.interp(grid, imu_t, acc[0]), "ay": np.interp(grid, imu_t, acc[1]),
+           "r": np.interp(grid, imu_t, gyro[2])}
+    od, od_t = cols[choice.odometry], times[choice.odometry]
+    sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
+    tilt = _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
+    _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
+    st_t = times[choice.steering]
+    command = cols[choice.steering]["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
+    # the servo holds each command until the next: held, not interpolated
+    sig["steer"] = command[np.clip(np.searchsorted(st_t, grid, side="right") - 1, 0, len(st_t) - 1)]
+    if choice.steering_type == FLOAT64:
+        from stid.steer_units import road_wheel_angle
+
+        sig["steer"], said, warned = road_wheel_angle(sig["steer"], sig["r"], sig["vx"], sig["ay"], rate, vehicle,
+                                                      where, choice.steering)
+        notes += said
+        warnings += warned
+    return sig, tilt
+
+
+def _check(run, table, where) -> None:
+    """Units and signs against kinematics (stid.input_checks); an IMU turned 90 deg named."""
+    try:
+        input_checks.check_kinematics(run, source="ros")
+    except InputError:
+        _check_turned(run, table, where)  # a better message, when that is what is wrong
+        raise
+    if any("could not be checked" in w for w in run.meta.get("warnings", [])):
+        _check_turned(run, table, where)
+
+
+def _open(path, table):
+    """A bag, or a directory of per-topic CSVs that the [ros] table names."""
+    from stid.ros import topic_files
+
+    if path.is_dir() and not (path / "metadata.yaml").exists() and topic_files.names_files(table):
+        return topic_files.TopicFiles(path, table)
+    return Bag(path)
+
+
+def _stamps(col, topic, use_header, notes, where) -> np.ndarray:
+    """Nanoseconds (from the epoch or the bag's clock) of each message, increasing."""
+    log = col["t_log"].astype(np.int64)
+    if "header.stamp.sec" in col and use_header:
+        t = col["header.stamp.sec"].astype(np.int64) * 1_000_000_000 + col["header.stamp.nanosec"].astype(np.int64)
+        if np.all(t == 0):
+            notes.append(f"{topic}: header stamps are all zero: timed by the bag's receive times")
+            t = log
+    else:
+        t = log
+        if "header.stamp.sec" not in col:
+            notes.append(f"{topic} has no header: timed by the bag's receive times")
+    dt = np.diff(t)
+    back = np.flatnonzero(dt < 0)
+    if len(back):
+        k = int(back[0])
+        kind = "header stamps" if t is not log else "receive times"
+        raise InputError(f"{where}: {topic}'s {kind} go backwards at message {k + 2} of {len(t)} (by "
+                         f"{-dt[k] * 1e-6:.1f} ms, {(t[k + 1] - t[0]) * 1e-9:.2f} s in): two publishers on one topic, or a "
+                         "clock reset; record that topic from one source"
+                         + (", or time by receive: [ros] stamps = \"receive\"" if kind == "header stamps" else ""))
+    same = dt == 0
+    if same.any():
+        keep = np.concatenate([[True], ~same])
+        for k in col:
+            col[k] = col[k][keep]
+        t = t[keep]
+        notes.append(f"{topic}: {int(same.sum())} messages repeat the stamp before them: dropped")
+    return t
+
+
+def _body_axes(acc, gyro, table, vehicle, where, notes):
+    """IMU axes -> the car's (ISO 8855), in m/s^2 and rad/s; gravity found and said."""
+    if table.get("accel_unit") == "g":
+        acc = acc * G
+    if table.get("gyro_unit") == "deg/s":
+        gyro = np.radians(gyro)
+    m = topic_map.axes_matrix(table["imu_axes"], where) if "imu_axes" in table else np.eye(3)
+    acc, gyro = m @ acc, m @ gyro
+    mean = np.median(acc, axis=1)
+    norm = float(np.linalg.norm(mean))
+    if abs(norm - 1.0) < 0.15 and table.get("accel_unit") != "g":
+        raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} at rest-level: that is gravity in g, "
+                         "not m/s^2 (REP 145 wants m/s^2; the VESC driver's sensors/imu/raw sends g): add "
+                         "accel_unit = \"g\" to the vehicle file's [ros]")
+    if abs(norm - G) < 0.2 * G:
+        axis = int(np.argmax(np.abs(mean)))
+        if axis != 2 or mean[2] < 0:
+            seen = f"{'-' if mean[axis] < 0 else '+'}{'xyz'[axis]}"
+            raise InputError(f"{where}: gravity is on the car's {seen} axis after [ros] imu_axes "
+                             f"{table.get('imu_axes', ['x', 'y', 'z'])}: it must be on +z (z up); the IMU's "
+                             "mounting is declared wrong, see docs/ros.md")
+        roll = float(vehicle.sensors.get("mount_roll", 0.0)) if vehicle is not None else 0.0
+        pitch = float(vehicle.sensors.get("mount_pitch", 0.0)) if vehicle is not None else 0.0
+        if roll or pitch:
+            acc = convert.mount_rotation(roll, pitch) @ acc
+            notes.append(f"IMU tilt undone: roll {np.degrees(roll):+.2f} deg, pitch {np.degrees(pitch):+.2f} deg "
+                         "(the vehicle file's [sensors])")
+        tilt = np.degrees(np.arctan2(np.hypot(mean[0], mean[1]), mean[2]))
+        notes.append(f"the accelerometer holds gravity ({norm:.2f} m/s^2, {tilt:.1f} deg off z): ay is the "
+                     "specific force the car's y axis feels")
+    elif norm < 0.2 * G:
+        notes.append("the accelerometer has gravity removed (driver-side): ay taken as it is")
+    else:
+        raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} m/s^2 on average: neither gravity "
+                         "(9.81) nor gravity removed (0); check [ros] accel_unit")
+    return acc, gyro
+
+
+def _check_turned(run, table, where) -> None:
+    """An IMU turned 90 deg about z and not declared so: the car's lateral acceleration is on
+    its x axis (ay = vx*r holds for ax instead). Said with the imu_axes that fix it."""
+    lo, hi = input_checks.CONSISTENT_GAIN
+
+    def gain(channel):
+        g = input_checks.ay_gain(Run("", run.t, run.steer, getattr(run, channel), run.r, run.vx))
+        return None if isinstance(g, str) else g
+
+    g_y = gain("ay")
+    if g_y is not None and lo <= g_y <= hi:
+        return
+    g_x = gain("ax")
+    if g_x is None or not lo <= abs(g_x) <= hi:
+        return
+    s = 1 if g_x > 0 else -1
+    rows = table.get("imu_axes", ["x", "y", "z"])
+    flip = lambda a: a[1:] if a.startswith("-") else "-" + a  # noqa: E731
+    fixed = [rows[1] if s < 0 else flip(rows[1]), rows[0] if s > 0 else flip(rows[0]), rows[2]]
+    axes = ", ".join(f'"{a}"' for a in fixed)
+    declared = "declared" if "imu_axes" in table else "assumed (none declared)"
+    raise InputError(f"{where}: ax follows vx*r (ax = {g_x:.2f} x vx*r) and ay does not: the IMU is turned 90 deg "
+                     f"about z from the axes {declared}; set in the vehicle file's [ros]: imu_axes = [{axes}]")
+
+
+TILT_NOTE_DEG = 1.0  # g sin(1 deg) = 0.17 m/s^2 on ay: worth a line in the vehicle file
+
+
+def _tilt(acc, vx, rate, vehicle, notes):
+    """The IMU's tilt from gravity while the car stands still, ``{"mount_roll", "mount_pitch"}``
+    [rad] as ``stid calibrate`` writes them (None without a stand-still or gravity). Said with
+    the [sensors] lines that undo it when none are declared."""
+    from stid import segments
+    from stid.calibrate import _mounting
+
+    still = segments.still_mask(vx, rate)
+    if still.sum() < 0.5 * rate:
+        return None
+    g = acc[:, still].mean(axis=1)
+    if abs(np.linalg.norm(g) - G) > 0.2 * G:
+        return None  # gravity removed (or not only gravity): nothing to tell the tilt by
+    roll, pitch = _mounting(g)
+    found = {"mount_roll": roll, "mount_pitch": pitch}
+    sensors = vehicle.sensors if vehicle is not None else {}
+    tilt = np.degrees(np.arctan2(np.hypot(g[0], g[1]), g[2]))
+    if "mount_roll" in sensors or "mount_pitch" in sensors or tilt < TILT_NOTE_DEG:
+        return found
+    notes.append(f"the IMU sits tilted {tilt:.1f} deg at rest (ay {g[1]:+.2f}, ax {g[0]:+.2f} m/s^2 of gravity); "
+                 f"to undo it, add to the vehicle file's [sensors]: mount_roll = {roll:.4f} and mount_pitch = "
+                 f"{pitch:.4f} (rad), or run 'stid calibrate' on it")
+    return found
+
+
+def _forward_speed(od, notes, topic) -> np.ndarray:
+    vx = od["twist.twist.linear.x"]
+    vy = od["twist.twist.linear.y"]
+    if np.sqrt(np.mean(vy ** 2)) > 0.3 * max(np.sqrt(np.mean(vx ** 2)), 1e-9):
+        notes.append(f"{topic}: the twist has a large sideways part (not in the car's frame, REP 105?): vx is "
+                     "its magnitude, signed as linear.x")
+        return np.sign(vx) * np.hypot(vx, vy)
+    return vx
+
+
+def _odometry_yaw(od, od_t, imu_t, imu_r, choice, notes) -> None:
+    """The odometry's yaw rate is not used (the VESC's is computed from the steering command,
+    not measured); an opposite sign is said, since it flips every comparison made with it."""
+    w = od["twist.twist.angular.z"]
+    if not np.any(w):
+        return
+    r = np.interp(od_t, imu_t, imu_r)
+    if np.std(r) > 0 and np.std(w) > 0 and np.corrcoef(r, w)[0, 1] < -0.5:
+        notes.append(f"{choice.odometry}'s yaw rate has the opposite sign to the IMU's (not used: r is the gyro's)")
+
+
+def _measured(grid, times) -> np.ndarray:
+    """False at grid points inside a gap of some sensor topic (lost messages): held, not measured."""
+    ok = np.ones(len(grid), bool)
+    for t in times.values():
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        for k in np.flatnonzero(dt > GAP_PERIODS * med):
+            ok[(grid > t[k] + med) & (grid < t[k + 1] - med)] = False
+    return ok
+
+
+def _pieces(grid, times):
+    """The stretches between sensor silences longer than SENSOR_CUT_S (grid index ranges)."""
+    gaps = sorted((t[k], t[k + 1]) for t in times.values() for k in np.flatnonzero(np.diff(t) > SENSOR_CUT_S))
+    pieces, a = [], 0
+    for lo, hi in gaps:
+        b = int(np.searchsorted(grid, lo, side="right"))
+        if b > a:
+            pieces.append((a, b))
+        a = max(a, int(np.searchsorted(grid, hi, side="left")))
+    if a < len(grid):
+        pieces.append((a, len(grid)))
+    return pieces
+
+
+def _grid_note(parts, times, rate, grid, choice) -> str:
+    rates = {t: 1.0 / float(np.median(np.diff(tt))) for t, tt in times.items()}
+    last = max(t[-1] for t in times.values())
+    return (f"resampled to a uniform {rate:.1f} Hz grid: ay, ax, r from {parts['imu']} ({rates[parts['imu']]:.0f} Hz) "
+            f"and vx from {parts['odometry']} ({rates[parts['odometry']]:.0f} Hz) interpolated linearly, steer from "
+            f"{parts['steering']} ({rates[parts['steering']]:.0f} Hz, {choice.steering_type.split('/')[-1]}) held (a "
+            f"command holds until the next); {grid[-1] - grid[0]:.1f} s where all three overlap ({grid[0]:.2f} s at "
+            f"the start and {last - grid[-1]:.2f} s at the end left out)")
+
+
+def _gyro_zero(run) -> None:
+    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs)
+    run.meta["gyro_bias"] = bias
+    if bias is None:
+        run.warn("the run never stands still: the gyro's zero is taken as the IMU gives it (start runs with ~2 s "
+                 "standing still)")
+        return
+    run.r = run.r - bias
+    run.meta.setdefault("notes", []).append(f"gyro zero {bias:+.4f} rad/s, from the stand-still, taken off r")

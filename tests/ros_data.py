@@ -1,0 +1,286 @@
+"""A small F1TENTH-class car driven in plain physics, and the bags its ROS stack would
+record, written with rosbags' own writers (ROS 2 MCAP and ROS 1).
+
+The car is a linear single-track model written here (not stid's), integrated at 1 kHz
+with RK4; the steering command is held between the 50 Hz commands, as a servo holds it.
+The run stands still for 3 s, speeds up to ~3 m/s, then is steered at random.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+M, A, B, IZ, CF, CR = 3.5, 0.15, 0.18, 0.05, 90.0, 110.0  # kg, m, m, kg m^2, N/rad per axle
+L = A + B
+G = 9.81
+BASE_HZ = 1000
+# the VESC's servo map on an F1TENTH car (f1tenth_system vesc.yaml): servo = gain * angle + offset
+SERVO_GAIN, SERVO_OFFSET = -1.2135, 0.5304
+EPOCH_NS = 1_700_000_000_000_000_000  # header stamps are wall-clock time
+
+
+@dataclass
+class Drive:
+    """The truth at 1 kHz and what each sensor measured at its own instants."""
+
+    t: np.ndarray
+    steer: np.ndarray  # road-wheel angle [rad] (the held command)
+    vx: np.ndarray
+    ay: np.ndarray
+    r: np.ndarray
+    cmd_t: np.ndarray  # command instants [s] and angles [rad]
+    cmd: np.ndarray
+    imu_k: np.ndarray = field(default=None)  # indices of the IMU samples into t
+    odom_k: np.ndarray = field(default=None)
+    imu_ay: np.ndarray = field(default=None)  # body-frame measurements (with noise)
+    imu_ax: np.ndarray = field(default=None)
+    imu_r: np.ndarray = field(default=None)
+    odom_vx: np.ndarray = field(default=None)
+
+
+def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.06, noise=True) -> Drive:
+    rng = np.random.default_rng(seed)
+    n = int(duration * BASE_HZ)
+    t = np.arange(n) / BASE_HZ
+    vx = np.where(t < 3.0, 0.0, np.minimum((t - 3.0) / 2.0, 1.0) * (3.0 + 0.5 * np.sin(2 * np.pi * (t - 3.0) / 20)))
+    cmd_t = np.arange(0.0, duration, 1.0 / cmd_hz)
+    # random steering, band-limited to ~4 Hz by a moving average of white noise, from t = 6 s
+    raw = rng.standard_normal(len(cmd_t) + 20)
+    smooth = np.convolve(raw, np.ones(6) / 6, mode="same")[10:-10]
+    cmd = np.where(cmd_t >= 6.0, smooth / smooth.std() * steer_rms, 0.0)
+    steer = cmd[np.clip(np.searchsorted(cmd_t, t, side="right") - 1, 0, len(cmd) - 1)]
+    vy, r, ay = _integrate(t, vx, steer)
+    d = Drive(t=t, steer=steer, vx=vx, ay=ay, r=r, cmd_t=cmd_t, cmd=cmd)
+    d.imu_k = np.arange(2, n, BASE_HZ // imu_hz)  # the IMU 2 ms off the command's instants
+    d.odom_k = np.arange(7, n, BASE_HZ // odom_hz)
+    s = 1.0 if noise else 0.0
+    d.imu_ay = ay[d.imu_k] + s * 0.05 * rng.standard_normal(len(d.imu_k))
+    d.imu_ax = s * 0.05 * rng.standard_normal(len(d.imu_k))
+    d.imu_r = r[d.imu_k] + s * 0.005 * rng.standard_normal(len(d.imu_k))
+    d.odom_vx = vx[d.odom_k] + s * 0.02 * rng.standard_normal(len(d.odom_k))
+    return d
+
+
+def _integrate(t, vx, steer):
+    """vy, r, ay of the linear single-track model (RK4, steer held over each step)."""
+    dt = 1.0 / BASE_HZ
+    n = len(t)
+    vy_out, r_out, ay_out = np.zeros(n), np.zeros(n), np.zeros(n)
+    vy = r = 0.0
+
+    def deriv(vy, r, v, d):
+        ff = CF * (d - (vy + A * r) / v)
+        fr = CR * (-(vy - B * r) / v)
+        return (ff + fr) / M - v * r, (A * ff - B * fr) / IZ, (ff + fr) / M
+
+    for k in range(n):
+        v, d = float(vx[k]), float(steer[k])
+        if v < 0.3:  # standing (or barely rolling) and not steered: nothing moves sideways
+            vy = r = 0.0
+            continue
+        k1 = deriv(vy, r, v, d)
+        k2 = deriv(vy + 0.5 * dt * k1[0], r + 0.5 * dt * k1[1], v, d)
+        k3 = deriv(vy + 0.5 * dt * k2[0], r + 0.5 * dt * k2[1], v, d)
+        k4 = deriv(vy + dt * k3[0], r + dt * k3[1], v, d)
+        vy_out[k], r_out[k], ay_out[k] = vy, r, k1[2]
+        vy += dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+        r += dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+    return vy_out, r_out, ay_out
+
+
+def contract_csv(d: Drive, path: Path) -> Path:
+    """The same measurements as the import contract's CSV: on the IMU's instants, the command
+    held, the odometry's speed interpolated."""
+    t = d.t[d.imu_k]
+    cols = {"t": t, "steer": d.steer[d.imu_k], "ay": d.imu_ay, "r": d.imu_r,
+            "vx": np.interp(t, d.t[d.odom_k], d.odom_vx)}
+    np.savetxt(path, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="",
+               fmt="%.9g")
+    return path
+
+
+def vehicle_toml(path: Path, extra: str = "") -> Path:
+    path.write_text(f"name = \"f1tenth-class test car\"\nmass = {M}\na = {A}\nb = {B}\n{extra}")
+    return path
+
+
+# -- bags ----------------------------------------------------------------------------------
+
+_ACK_DRIVE = "float32 steering_angle\nfloat32 steering_angle_velocity\nfloat32 speed\nfloat32 acceleration\nfloat32 jerk\n"
+_ACK_STAMPED = "std_msgs/Header header\nackermann_msgs/AckermannDrive drive\n"
+
+
+def typestore(ros1: bool):
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    types = get_types_from_msg(_ACK_DRIVE, "ackermann_msgs/msg/AckermannDrive")
+    types.update(get_types_from_msg(_ACK_STAMPED, "ackermann_msgs/msg/AckermannDriveStamped"))
+    ts.register(types)
+    return ts
+
+
+@dataclass
+class Layout:
+    """How the car's ROS stack published the drive."""
+
+    imu_topic: str = "/sensors/imu/raw"
+    odom_topic: str = "/odom"
+    steer_topic: str = "/ackermann_drive"
+    servo: bool = False  # steer as the VESC's 0-1 servo command (std_msgs/Float64, no header)
+    imu_to_body: tuple = ("x", "y", "z")  # the car's x, y, z as the IMU's signed axes ([ros] imu_axes)
+    gravity: bool = True  # the accelerometer holds gravity (raw), or has it removed
+    tilt_roll_deg: float = 0.0  # the IMU's board rolled about the car's x axis
+    accel_g: bool = False  # accelerometer in g, gyro in deg/s (the VESC driver's sensors/imu/raw)
+    gyro_bias: float = 0.0  # rad/s
+    odom_yaw_sign: float = 1.0  # the odometry's (unused) yaw rate, -1: opposite to the gyro
+    stamp_offset_s: dict = field(default_factory=dict)  # topic -> shift of its header stamps
+    drop_topics: tuple = ()
+    backwards_at: int | None = None  # an IMU stamp that goes back
+    nan_at: int | None = None  # an IMU message whose ay is NaN (a driver's failed read)
+    extra_topics: dict = field(default_factory=dict)  # topic -> msgtype, a few messages each
+
+
+def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
+    """Body-frame vectors (3, n) as the IMU reads them: its board rolled by ``tilt_roll_deg``
+    about the car's x axis (the board's axes are the car's turned by Rx: it reads Rx^T v),
+    its chip turned on the board per ``imu_to_body``."""
+    c, s = math.cos(math.radians(layout.tilt_roll_deg)), math.sin(math.radians(layout.tilt_roll_deg))
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    m = np.zeros((3, 3))
+    for row, a in enumerate(layout.imu_to_body):
+        m[row, "xyz".index(a[-1])] = -1.0 if a.startswith("-") else 1.0
+    return m.T @ (rx.T @ body)  # board = m @ chip, m orthogonal
+
+
+def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = False, sqlite: bool = False) -> Path:
+    """The drive as ``ros2 bag record`` (MCAP storage, or SQLite with ``sqlite``) or ``rosbag
+    record`` would hold it."""
+    ts = typestore(ros1)
+    T = ts.types["builtin_interfaces/msg/Time"]
+    H = ts.types["std_msgs/msg/Header"]
+    V3 = ts.types["geometry_msgs/msg/Vector3"]
+    Q = ts.types["geometry_msgs/msg/Quaternion"]
+    imu_cls = ts.types["sensor_msgs/msg/Imu"]
+    od = {k: ts.types[f"geometry_msgs/msg/{k}"] for k in ("Pose", "Point", "PoseWithCovariance", "Twist",
+                                                          "TwistWithCovariance")}
+    odom_cls = ts.types["nav_msgs/msg/Odometry"]
+    ack_cls = ts.types["ackermann_msgs/msg/AckermannDriveStamped"]
+    drv_cls = ts.types["ackermann_msgs/msg/AckermannDrive"]
+    f64 = ts.types["std_msgs/msg/Float64"]
+    ser = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+    seq = [0]
+
+    def header(t, frame, topic):
+        ns = EPOCH_NS + int(round((t + layout.stamp_offset_s.get(topic, 0.0)) * 1e9))
+        stamp = T(sec=ns // 10 ** 9, nanosec=ns % 10 ** 9)
+        seq[0] += 1
+        return H(seq=seq[0], stamp=stamp, frame_id=frame) if ros1 else H(stamp=stamp, frame_id=frame)
+
+    zero9, zero36 = np.zeros(9), np.zeros(36)
+    events = []  # (receive ns, topic, msgtype, message)
+    rx = lambda t: EPOCH_NS + int(round((t + 0.0013) * 1e9))  # noqa: E731 - received 1.3 ms after measured
+    t_imu = d.t[d.imu_k]
+    body_acc = np.vstack([d.imu_ax, d.imu_ay, np.full(len(t_imu), G if layout.gravity else 0.0)])
+    body_gyro = np.vstack([np.zeros(len(t_imu)), np.zeros(len(t_imu)), d.imu_r + layout.gyro_bias])
+    acc, gyro = _imu_axes(layout, body_acc), _imu_axes(layout, body_gyro)
+    if layout.accel_g:
+        acc, gyro = acc / G, np.degrees(gyro)
+    if layout.nan_at is not None:
+        acc[1, layout.nan_at] = np.nan
+    for k, t in enumerate(t_imu):
+        # a stamp that goes back (a clock step in the driver): received in its place all the same
+        stamp_t = t - 0.012 if k == layout.backwards_at else t
+        m = imu_cls(header=header(stamp_t, "imu_link", layout.imu_topic), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
+                    orientation_covariance=zero9, angular_velocity=V3(x=gyro[0, k], y=gyro[1, k], z=gyro[2, k]),
+                    angular_velocity_covariance=zero9,
+                    linear_acceleration=V3(x=acc[0, k], y=acc[1, k], z=acc[2, k]),
+                    linear_acceleration_covariance=zero9)
+        events.append((rx(t), layout.imu_topic, imu_cls.__msgtype__, m))
+    t_od = d.t[d.odom_k]
+    yaw_rate = layout.odom_yaw_sign * d.vx[d.odom_k] * np.tan(d.steer[d.odom_k]) / L  # as vesc_to_odom computes it
+    for k, t in enumerate(t_od):
+        pose = od["PoseWithCovariance"](pose=od["Pose"](position=od["Point"](x=0.0, y=0.0, z=0.0),
+                                                        orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0)),
+                                        covariance=zero36)
+        tw = od["TwistWithCovariance"](twist=od["Twist"](linear=V3(x=d.odom_vx[k], y=0.0, z=0.0),
+                                                         angular=V3(x=0.0, y=0.0, z=yaw_rate[k])), covariance=zero36)
+        m = odom_cls(header=header(t, "odom", layout.odom_topic), child_frame_id="base_link", pose=pose, twist=tw)
+        events.append((rx(t), layout.odom_topic, odom_cls.__msgtype__, m))
+    for t, a in zip(d.cmd_t, d.cmd):
+        if layout.servo:
+            m = f64(data=SERVO_GAIN * a + SERVO_OFFSET)
+            events.append((rx(t), layout.steer_topic, f64.__msgtype__, m))
+        else:
+            m = ack_cls(header=header(t, "base_link", layout.steer_topic),
+                        drive=drv_cls(steering_angle=a, steering_angle_velocity=0.0, speed=3.0, acceleration=0.0,
+                                      jerk=0.0))
+            events.append((rx(t), layout.steer_topic, ack_cls.__msgtype__, m))
+    for topic, msgtype in layout.extra_topics.items():
+        for k in range(5):
+            events.append((rx(k * 0.1), topic, msgtype, _filler(ts, msgtype)))
+    events = [e for e in events if e[1] not in layout.drop_topics]
+    events.sort(key=lambda e: e[0])
+    if ros1:
+        from rosbags.rosbag1 import Writer
+        w = Writer(path)
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        w = Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP)
+    with w:
+        conns = {}
+        for _, topic, msgtype, _m in events:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, msgtype, typestore=ts)
+        for ns, topic, msgtype, m in events:
+            w.write(conns[topic], ns, ser(m, msgtype))
+    return path
+
+
+def _filler(ts, msgtype):
+    if msgtype == "geometry_msgs/msg/Vector3Stamped":
+        T, H, V3 = (ts.types[k] for k in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header",
+                                          "geometry_msgs/msg/Vector3"))
+        return ts.types[msgtype](header=H(stamp=T(sec=1, nanosec=0), frame_id="x"), vector=V3(x=0.0, y=0.0, z=1.0))
+    if msgtype == "std_msgs/msg/String":
+        return ts.types[msgtype](data="hello")
+    raise ValueError(msgtype)
+
+
+def ros2_mcap(bag_dir: Path) -> Path:
+    """The .mcap file inside a rosbag2 directory (what a user may give instead of the directory)."""
+    (f,) = sorted(bag_dir.glob("*.mcap"))
+    return f
+
+
+def imu_axes_value(layout: Layout) -> str:
+    return "[" + ", ".join(f'"{a}"' for a in layout.imu_to_body) + "]"
+
+
+
+def as_libmcap_writes(src: Path, dst: Path, chunk_size: int = 768 * 1024, profile: str | None = None) -> Path:
+    """The bag's records re-chunked as ``ros2 bag record -s mcap`` writes them (libmcap's
+    McapWriterOptions defaults: zstd chunks of 768 KiB with CRCs, a message index after each),
+    by the mcap library. rosbags' own writer leaves chunks uncompressed and without CRCs."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        reader = make_reader(f)
+        w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        w.start(profile=reader.get_header().profile if profile is None else profile,
+                library="libmcap-like (stid tests)")
+        schemas, channels = {}, {}
+        for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                          schemas[schema.id], channel.metadata)
+            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        w.finish()
+    return dst
