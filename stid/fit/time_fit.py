@@ -128,7 +128,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         cov_jx = jk.jackknife_cov(res.jac, res.fun, row_block, n_blocks)
         if cov_jx is None:
             interval_note += f"; too little data for a model-error interval (needs {jk.K_MIN} blocks of " \
-                             f"{jk.BLOCK_MIN_S:g} s)"
+                             f"{jk.BLOCK_SHORT_S:g} s)"
         else:
             cov, widened = jk.combine(cov, to_physical(cov_jx, space, res.x))
             jk_dof = n_blocks - 1
