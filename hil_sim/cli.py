@@ -19,6 +19,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"%(prog)s {installed_version()}")
     ap.add_argument("--manoeuvre", default="random_steer", choices=manoeuvres.MANOEUVRES)
     ap.add_argument("--effects", default="", help="comma-separated hidden effects: " + ", ".join(vehicle.EFFECT_NAMES))
+    ap.add_argument("--car", metavar="FILE", help="another car: a TOML file of its truth (mass, a, b, Iz, Cf, Cr, "
+                                                  "...; see hil_sim/car_file.py); default the reference 1:8 car")
     ap.add_argument("--effect-file", action="append", default=[], metavar="FILE",
                     help="hide your own effect: a Python file defining steer_angle, body_loads and/or "
                          "sensor_signals (see hil_sim/effect_file.py; repeatable)")
@@ -94,7 +96,10 @@ def config_from_args(args):
 
     for f in args.effect_file:  # fail here, before any simulation, on a file that cannot work
         load_effect_file(f)
-    return SimConfig(plan=plan, effects=effects, effect_files=tuple(args.effect_file), seed=args.seed,
+    from hil_sim.car_file import load_car
+
+    car = load_car(args.car) if args.car else vehicle.CarParams()
+    return SimConfig(plan=plan, effects=effects, effect_files=tuple(args.effect_file), seed=args.seed, car=car,
                      board=args.board, rate_hz=args.rate, batch=args.batch, start_ticks=args.start_ticks,
                      stalls=tuple(stalls), car_fault_at=args.car_fault,
                      wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)

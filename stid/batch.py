@@ -48,7 +48,7 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
         from stid.fit.fitting import fit
 
         res = fit(runs, vehicle, model, method)
-        row.update({"model": res.model, "method": res.method})
+        row.update({"model": res.model, "method": res.method, "converged": bool(res.converged)})
         for n, v, se in zip(res.names, res.values, res.stderr):
             row[n] = float(v)
             row[f"{n}_se"] = float(se)

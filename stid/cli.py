@@ -145,7 +145,10 @@ def _floor_line(res, floor, se, args) -> str:
         from stid.present import floor_words
 
         text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
-    if short:
+    if short and not res.converged:
+        text += ("\n  this fit is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
+                 + ") because the solver did not converge, not because the model must lack something")
+    elif short:
         import shlex
 
         cmd = " ".join(shlex.quote(a) for a in ["stid", "diagnose", *args.runs, "--vehicle", args.vehicle,
@@ -260,8 +263,10 @@ def _cmd_plan(args) -> int:
     if args.params_from:
         from stid.fit.fitting import fit
 
-        params.update(fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time").all_params())
-        params_source = f"a fit to {', '.join(args.params_from)}"
+        fitted = fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time")
+        params.update(fitted.all_params())
+        params_source = f"a fit to {', '.join(args.params_from)}" + (
+            "" if fitted.converged else " that did not converge (its values are where the solver stopped)")
     else:
         params_source = "the model's defaults and the vehicle file's [params]"
     if not args.manoeuvre:

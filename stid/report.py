@@ -435,14 +435,17 @@ def _figure(title: str, fig, words: str = "") -> str:
 def _params_table(res) -> str:
     rows = []
     for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95):
-        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>[{lo:.5g}, {hi:.5g}]</td>"
+        ci = (f"[{lo:.5g}, {hi:.5g}]" if res.interval_of(n)
+              else f"no interval ({html.escape(res.undetermined.get(n, ''))})")
+        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>{ci}</td>"
                     f"<td>{html.escape(res.units[n])}</td><td>{html.escape(res.owners.get(n, ''))}</td></tr>")
     for n, (v, unit, why) in res.fixed.items():
         rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>fixed</td><td></td><td>{html.escape(unit)}</td>"
                     f"<td>{html.escape(why)}</td></tr>")
     return ("<table><tr><th>parameter</th><th>value</th><th>std. error</th><th>95% interval</th><th>unit</th>"
             "<th>from</th></tr>" + "".join(rows) + "</table>"
-            + (f"<p class='note'>{html.escape(res.interval)}</p>" if res.interval else ""))
+            + (f"<p class='warn'>{html.escape(res.verdict_line())}</p>" if res.verdict_line() else "")
+            + (f"<p class='note'>{html.escape(res.interval)}</p>" if res.interval and res.converged else ""))
 
 
 def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None,
