@@ -68,6 +68,8 @@ def _cmd_fit(args) -> int:
             doc["validation"] = {"runs": [r.name for r in held], "fit": {k: round(v, 2) for k, v in judged.fit.items()}}
         doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
         doc["noise_floor_stderr"] = {k: round(v, 3) for k, v in floor_se.items()}
+        # (fit points short of the floor: when not empty, the intervals assume a model that is not right)
+        doc["below_floor"] = below_floor(judged, floor, floor_se)
         print(_json(doc))
     else:
         print(res.table())
@@ -126,6 +128,16 @@ def _judge(res, model_name, vehicle, stretches, held, floor=None):
     return judge_on(res, Model(model_name, vehicle), stretches), floor, se
 
 
+def below_floor(res, floor, se) -> dict:
+    """Per output, how many fit points the model is short of the noise floor, where that is more
+    than chance (2.576 standard errors of the floor) and 2 points: its intervals then hold only
+    if the model were right."""
+    import math
+
+    return {o: round(floor[o] - res.fit[o], 2) for o in floor
+            if o in res.fit and math.isfinite(floor[o]) and floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
+
+
 def _floor_line(res, floor, se, args) -> str:
     if not res.fit or not all(k in floor for k in res.fit):
         return ""
@@ -136,8 +148,7 @@ def _floor_line(res, floor, se, args) -> str:
         from stid.present import floor_words
 
         return "  " + floor_words(floor, se)
-    short = {o: floor[o] - res.fit[o] for o in known
-             if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
+    short = below_floor(res, floor, se)
     on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"
     text = (f"  noise floor (what a correct model reaches {on}): "
             + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in known))
@@ -154,7 +165,9 @@ def _floor_line(res, floor, se, args) -> str:
         cmd = " ".join(shlex.quote(a) for a in ["stid", "diagnose", *args.runs, "--vehicle", args.vehicle,
                                                   "--model", args.model])
         text += ("\n  this model is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
-                 + "): something is missing. See what: " + cmd)
+                 + "): something is missing, and its intervals hold only if the model were right (a model "
+                 "that misses an effect bends its parameters to make up for it, by more than the intervals "
+                 "show). See what: " + cmd)
     return text
 
 

@@ -180,14 +180,21 @@ class FitResult:
         head = f"  {'parameter':<14}{'value':>13}{'std. error':>13}{'95% interval':>30}  unit"
         lines.append(head)
         lines.append("  " + "-" * (len(head) + 6))
-        for name, v, se, (lo, hi), ok in zip(self.names, self.values, self.stderr, self.ci95, self.determined):
+        widened = False
+        for name, v, se, (lo, hi), half, ok in zip(self.names, self.values, self.stderr, self.ci95, self.half95,
+                                                   self.determined):
             if not ok:
                 lines.append(f"  {name:<14}{_num(v):>13}{'-':>13}           no interval ({self.undetermined[name]})  "
                              f"{self.units[name]}")
                 continue
             rel = f"({100 * se / abs(v):.1f}%)" if v else ""
+            # an interval the model-error allowance or a t of few blocks made wider than ~2 standard
+            # errors says so on its row: the two columns would disagree without a word
+            wide = half / se if se > 0 else 0.0
+            mark = f"  (+-{wide:.1f} se)" if wide > WIDE_SE else ""
+            widened |= bool(mark)
             lines.append(f"  {name:<14}{_num(v):>13}{_num(se):>13} {rel:>8}  [{_num(lo)}, {_num(hi)}]  "
-                         f"{self.units[name]}")
+                         f"{self.units[name]}{mark}")
         for name, (v, unit, why) in self.fixed.items():
             lines.append(f"  {name:<14}{_num(v):>13}{'fixed':>13}           {why}  {unit}")
         if self.fit:
@@ -205,7 +212,9 @@ class FitResult:
         if verdict:
             lines.append(f"  {verdict}")
         if self.interval and self.converged:
-            lines.append(f"  {self.interval}")
+            lines.append(f"  {self.interval}"
+                         + ("; a row marked (+-N se) holds an interval N standard errors wide for that reason"
+                            if widened else ""))
         for w in self.notes:
             lines.append(f"  note: {w}")
         for w in self.warnings:
@@ -223,6 +232,9 @@ class FitResult:
             return ("no interval for " + ", ".join(f"{n} ({why})" for n, why in self.undetermined.items())
                     + ": the data do not determine " + ("it" if len(self.undetermined) == 1 else "them"))
         return ""
+
+
+WIDE_SE = 2.5  # half-width / std. error beyond which a row says how wide (noise alone: t ~ 1.96-2.4)
 
 
 def _num(x: float) -> str:
