@@ -269,3 +269,11 @@ def _floor_from(errors):
 
 def noise_floor(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> dict:
     return noise_floor_uncertainty(stretches, memory_s, keep_from_s)[0]
+
+
+def below_floor(res, floor, se) -> dict:
+    """Per output, how many fit points the model is short of the noise floor, where that is more
+    than chance (2.576 standard errors of the floor) and 2 points: its intervals then hold only
+    if the model were right."""
+    return {o: round(floor[o] - res.fit[o], 2) for o in floor
+            if o in res.fit and np.isfinite(floor[o]) and floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
