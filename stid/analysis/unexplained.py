@@ -69,7 +69,7 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     """What the model leaves, and where (``mapper``: over the per-speed refits, as in
     stid.analysis.evidence.fit_groups; ``parts``: those refits when the caller has them)."""
     from stid.analysis.evidence import disagreements, fit_groups
-    from stid.analysis.noise_floor import floor_errors, floor_rate
+    from stid.analysis.noise_floor import floor_errors, floor_rate, floor_words
     from stid.stats import tau_int
 
     gap = {o: float(floor[o] - result.fit[o]) for o in OUTS}
@@ -78,8 +78,6 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     for r in reasons:
         u.where.append(r)
     if not all(np.isfinite(floor[o]) for o in OUTS):
-        from stid.present import floor_words
-
         u.where.append(floor_words(floor, floor_se) + ": what a correct model reaches here is unknown")
         return u
     if not short:
