@@ -204,7 +204,8 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
             c.explanation = explain(c, top.result, stretches, adding=f"Adding it to {model_name}+{top.effect}")
         else:
             c.explanation = explain(c, base, stretches)
-    return Diagnosis(model_name, base, floor, ra.tau_int, n_eff, todo + skipped, floor_se=floor_se)
+    return Diagnosis(model_name, base, floor, ra.tau_int, n_eff, todo + skipped, floor_se=floor_se,
+                     stretches=stretches)
 
 
 def _name_one(ranked, skipped, model_name, vehicle, stretches, progress, pool=None, n_eff=None,
@@ -289,7 +290,6 @@ def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max
             d = diagnose_round(runs, vehicle, name, progress=progress, base=base, stretches=stretches,
                                candidates=candidates, floor=floor, pool=pool)
             floor = (d.floor, d.floor_se)
-            d.stretches = stretches
             rounds.append(d)
             best = d.best
             if best is None or best.separable_from:

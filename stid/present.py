@@ -67,12 +67,10 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
     lines = []
     see_below = False  # a round's verdict points to the 'unexplained' section: it must be there
     for k, d in enumerate(rounds):
-        speeds = sorted({round(p.vx, 1) for p in d.base.predictions})
         head = "" if k == 0 else f"step {k + 1}: "
         n = len(d.base.predictions)
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
-                     f"{floor_words(d.floor, d.floor_se)}   "
-                     f"[{n} stretch{'es' if n != 1 else ''} at {', '.join(f'{v:g}' for v in speeds)} m/s]")
+                     f"{floor_words(d.floor, d.floor_se)}   [{n} stretch{'es' if n != 1 else ''} at {_speeds(d)}]")
         if any(c.skipped or c.result is not None for c in d.candidates):
             lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:
@@ -123,6 +121,15 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
     else:  # the chain is complete (or nothing was missing): fit it, with intervals
         lines.append(f"next: {_command(runs, vehicle_path, 'fit', '--model', final)}")
     return "\n".join(lines).rstrip()
+
+
+def _speeds(d) -> str:
+    """The speeds of the round's data (a range where a stretch's speed varies within it)."""
+    if d.stretches:
+        from stid.analysis.speeds import stretch_speeds
+
+        return stretch_speeds(d.stretches)
+    return ", ".join(f"{v:g}" for v in sorted({round(p.vx, 1) for p in d.base.predictions})) + " m/s"
 
 
 def _named_lines(d) -> list:

@@ -117,8 +117,8 @@ def disagreements(parts: dict, names) -> list:
                         bad = True
             if bad:
                 unit = unit_suffix(groups[0].result.units.get(n, ""))
-                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}] at {lab}" for lab, v, ci, _ in vals)
-                out.append((kind, n, f"{n} {txt}{unit}"))
+                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]{unit} at {lab}" for lab, v, ci, _ in vals)
+                out.append((kind, n, f"{n} {txt}"))
     return out
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from stid.analysis.speeds import at_speeds, held_speeds, speed_range, varies
 from stid.models.effect import available_effects
 from stid.models.params import unit_suffix
 from stid.search.candidate import OUTS, Candidate
@@ -16,16 +17,17 @@ def explain(c: Candidate, base, stretches, res=None, adding: str = "Adding it") 
     over ``base`` (a pair's first says it was added with the second, its numbers are theirs)."""
     res = res if res is not None else c.result
     p = res.params()
-    speeds = sorted({round(s.vx, 1) for s in stretches})
-    sp = ", ".join(f"{v:g}" for v in speeds) + " m/s"
+    speeds = [v for v, _ in held_speeds(stretches)]
+    if len(speeds) == 1 and varies(stretches):
+        speeds = list(speed_range(stretches))  # (the relaxation's lag at either end of the range)
     gain = ", ".join(f"{o} {base.fit[o]:.1f}% -> {res.fit[o]:.1f}%" for o in OUTS)
     cls = available_effects()[c.effect]
-    at = f"at every speed ({sp})" if len(speeds) > 1 else f"at {sp} (one speed only)"
+    at = at_speeds(stretches)
     if c.effect == "actuator_lag":
         lead = (f"yaw-rate and lateral-acceleration residuals follow the steer by ~{1000 * p['tau_steer']:.0f} ms "
                 f"{at}: steering servo lag, tau = {1000 * p['tau_steer']:.0f} ms")
     elif c.effect == "tyre_relaxation":
-        lags = ", ".join(f"{1000 * p['sigma_f'] / v:.0f} ms at {v:g} m/s" for v in speeds)
+        lags = ", ".join(f"{1000 * p['sigma_f'] / v:.0f} ms at {v:.1f} m/s" for v in speeds)
         lead = (f"the response lags more at low speed ({lags} at the front axle): tyre relaxation, "
                 f"sigma_f = {p['sigma_f']:.3f} m, sigma_r = {p['sigma_r']:.3f} m")
     elif c.effect == "accel_offset":
