@@ -310,4 +310,6 @@ def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max
         last.unexplained = describe_unexplained(final_name, final, vehicle, stretches, floor[0], floor[1], reasons,
                                                 catalogue_done=last.best is None, mapper=mapper(pool, final_name),
                                                 parts=parts)
+        last.unexplained.pairs_tried = {c.effect: c.pairs.to_json() for c in last.candidates
+                                        if c.pairs is not None and not c.significant}
     return rounds

@@ -31,10 +31,14 @@ class Unexplained:
     by_amplitude: dict = field(default_factory=dict)  # "|steer|"/"|ay|" -> output -> [(bin, rms, rms / output rms)]
     by_speed: list = field(default_factory=list)  # [(label, {param: (value, lo, hi)})]
     follows: dict = field(default_factory=dict)  # output -> [(signal, correlation, band)]
+    pairs_tried: dict = field(default_factory=dict)  # an effect not named -> its pair search's JSON
 
     def to_json(self) -> dict:
-        return {"significant": self.significant, "model": self.model,
-                "gap": {k: round(v, 2) for k, v in self.gap.items()}, "where": list(self.where)}
+        out = {"significant": self.significant, "model": self.model,
+               "gap": {k: round(v, 2) for k, v in self.gap.items()}, "where": list(self.where)}
+        if self.pairs_tried:  # "the catalogue lacks it" is said after these
+            out["pairs_tried"] = self.pairs_tried
+        return out
 
 
 def _residuals(result):
