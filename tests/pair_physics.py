@@ -8,8 +8,8 @@ speed swings +-25% around 3 and 7 m/s.
 - spool: both rear wheels turn at one speed, so their slip differs by t r / vx across the
   track t; with axle longitudinal stiffness Cx the forces make Mz = -(Cx t^2 / 4) r / vx;
 - the body: lateral and yaw equations of the linear single track at the speed of the moment,
-  integrated at 2 kHz (the speed frozen over each 10 ms output sample) from a steer command
-  band-limited at 3 Hz on that grid, and read (with the command) at 100 Hz;
+  integrated with the servo by RK4 at 1 kHz from a steer command band-limited at 3 Hz on a
+  2 kHz grid, and read (with the command) at 100 Hz;
   ay = (Fyf + Fyr) / m is what an accelerometer at the CG reads.
 White noise of 2% of each output's spread is added."""
 
@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from stid.run import Run
 from stid.vehicle_file import Vehicle
@@ -71,44 +70,58 @@ def _command(n, fs, seed, rms_deg, bw_hz):
     return c * np.radians(rms_deg) / np.std(c)
 
 
-SUB = 20  # integration steps per output sample (2 kHz at 100 Hz)
+SUB = 10  # RK4 steps per output sample (1 ms at 100 Hz); the command is on a grid twice as fine
 
 
 def pair_run(car: Car10, effects, v0: float, seed: int, T: float = 30.0, fs: float = 100.0,
-             rms_deg: float = 3.0, bw_hz: float = 3.0, noise: float = 0.02) -> Run:
+             rms_deg: float = 3.0, bw_hz: float = 3.0, noise: float = 0.02, swing: float = 0.25) -> Run:
     n = int(T * fs)
     h = 1.0 / (fs * SUB)
-    cmd = _command(n * SUB, fs * SUB, seed, rms_deg, bw_hz)  # continuous, on the fine grid
+    cmd = _command(2 * n * SUB + 2, 2 * fs * SUB, seed, rms_deg, bw_hz)  # continuous: at every RK4 stage
     t = np.arange(n) / fs
-    speed = lambda tt: v0 * (1 + 0.25 * np.sin(2 * np.pi * tt / 7.0 + seed))  # noqa: E731
+    speed = lambda tt: v0 * (1 + swing * np.sin(2 * np.pi * tt / 7.0 + seed))  # noqa: E731
     tau = car.tau if "actuator_lag" in effects else 0.0
     k3 = car.k3 if "steering_nonlinearity" in effects else 0.0
     spool = car.spool if "locked_diff" in effects else 0.0
     m, a, b, Iz, Cf, Cr = car.mass, car.a, car.b, car.Iz, car.Cf, car.Cr
-    half = np.exp(-h / (2 * tau)) if tau > 0 else 0.0  # the servo over half a step
-    u = cmd[0]
-    x = None
+
+    def forces(x, v):
+        vy, r, u = x
+        delta = u * (1 + k3 * u * u)
+        return Cf * (delta - (vy + a * r) / v), Cr * (-(vy - b * r) / v)
+
+    def rhs(x, k):  # k: the stage's index on the command's grid
+        tt = k / (2 * fs * SUB)
+        v = speed(tt)
+        ff, fr = forces(x, v)
+        du = (cmd[k] - x[2]) / tau if tau > 0 else 0.0
+        return np.array([(ff + fr) / m - v * x[1], (a * ff - b * fr - spool * x[1] / v) / Iz, du])
+
+    # start in the steady state of the first steer (the servo settled on it)
+    u0 = cmd[0]
+    v = speed(0.0)
+    A = np.array([[-(Cf + Cr) / (m * v), -(a * Cf - b * Cr) / (m * v) - v],
+                  [-(a * Cf - b * Cr) / (Iz * v), -(a * a * Cf + b * b * Cr + spool) / (Iz * v)]])
+    x = np.append(-np.linalg.solve(A, np.array([Cf / m, a * Cf / Iz]) * u0 * (1 + k3 * u0 * u0)), u0)
     ay, r = np.empty(n), np.empty(n)
     for i in range(n):
-        v = speed(t[i] + 0.5 / fs)  # frozen over the sample at its middle
-        A = np.array([[-(Cf + Cr) / (m * v), -(a * Cf - b * Cr) / (m * v) - v],
-                      [-(a * Cf - b * Cr) / (Iz * v), -(a * a * Cf + b * b * Cr) / (Iz * v) - spool / (Iz * v)]])
-        B = np.array([Cf / m, a * Cf / Iz])
-        E = expm(np.block([[A, B[:, None]], [np.zeros((1, 3))]]) * h)
-        if x is None:
-            x = -np.linalg.solve(A, B * u * (1 + k3 * u * u))  # the steady state of the first steer
-        vy, rr = x
-        delta = u * (1 + k3 * u * u)
-        ay[i] = (Cf * (delta - (vy + a * rr) / v) + Cr * (-(vy - b * rr) / v)) / m
-        r[i] = rr
-        for c in cmd[i * SUB:(i + 1) * SUB]:
-            um = c + (u - c) * half  # the servo at the step's middle drives the step (second order)
-            x = E[:2, :2] @ x + E[:2, 2] * (um * (1 + k3 * um * um))
-            u = c + (um - c) * half
+        if tau == 0:
+            x[2] = cmd[2 * i * SUB]
+        ff, fr = forces(x, speed(t[i]))
+        ay[i], r[i] = (ff + fr) / m, x[1]
+        for j in range(SUB):
+            k = 2 * (i * SUB + j)
+            if tau == 0:  # the wheel follows the command itself
+                x[2] = cmd[k]
+            k1 = rhs(x, k)
+            k2 = rhs(x + 0.5 * h * k1, k + 1)
+            k3_ = rhs(x + 0.5 * h * k2, k + 1)
+            k4 = rhs(x + h * k3_, k + 2)
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3_ + k4)
     rng = np.random.default_rng(1000 + seed)
     ay = ay + noise * np.std(ay) * rng.standard_normal(n)
     r = r + noise * np.std(r) * rng.standard_normal(n)
-    return Run(name=f"track {v0:g} m/s", t=t, steer=cmd[::SUB], ay=ay, r=r, vx=speed(t))
+    return Run(name=f"track {v0:g} m/s", t=t, steer=cmd[:2 * n * SUB:2 * SUB], ay=ay, r=r, vx=speed(t))
 
 
 def pair_runs(car: Car10, effects, seed: int, speeds=(3.0, 7.0), rms_deg=3.0, **kw) -> list:

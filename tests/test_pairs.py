@@ -5,6 +5,7 @@ track at 3 and 7 m/s, 100 Hz, 30 s each."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -24,6 +25,7 @@ CASES = {"actuator_lag+locked_diff": (LAG_SPOOL, {}),
          "actuator_lag+steering_nonlinearity": (LAG_LINKAGE, {"rms_deg": (5.0, 1.5)})}
 
 
+@functools.lru_cache(maxsize=2)  # (the default tests share one case; the slow one makes 30 each)
 def _case(name, seed):
     car, kw = CASES[name]
     effects = tuple(name.split("+"))
