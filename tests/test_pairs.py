@@ -84,8 +84,19 @@ def test_the_catalogue_lacks_it_only_after_the_pairs_and_says_which(tmp_path):
     assert text.index("pairs tried with actuator_lag") < text.index("an effect the catalogue lacks")
 
 
+# Measured (30 seeds each, 2026-11-26): lag + spool: named right 30/30; Cf, Cr, Iz, k_diff
+# covered 100%, tau 97%. Lag + linkage: named right 30/30, Cf 97%, Cr, Iz, tau 100%, k3 3%:
+# stid applies the linkage map to the logged steer before the servo's lag (stid/models/model.py,
+# steer maps first), while the car (and hil_sim) puts the linkage after the servo; noise-free,
+# k3 then fits -12.7% with an interval that excludes the truth (with the physics in stid's order
+# it fits within 0.01%). Strict: this fails once the model composes them as the car does.
+LINKAGE_AFTER_SERVO = pytest.mark.xfail(strict=True, reason="stid composes the linkage before the servo lag: "
+                                                           "k3 biased -12.7%, covered 1/30")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("case", [pytest.param(c, marks=LINKAGE_AFTER_SERVO) if "steering_nonlinearity" in c else c
+                                  for c in sorted(CASES)])
 def test_intervals_after_diagnosis_hold_the_truth_over_seeds(case):
     """Over 30 seeds, `diagnose --peel` names both effects (in one round or two) in at least 90%
     of them, and the final model's 95% intervals hold each true parameter in at least 90%
