@@ -127,7 +127,8 @@ def search_pairs(model_name, top, others, vehicle, stretches, n_eff, floor, pool
         steps, kept, first = ahead.result()
     else:
         steps, kept = sift_partners(model_name, top, testable, vehicle, stretches, n_eff)
-    search.tried += [PairTry(s.effect, SCREENED, s.why_not.removeprefix("screened out: "), gain=s.gain)
+    said = f"screened out: a linearised step from {search.model} "  # (said once, in PairSearch.words)
+    search.tried += [PairTry(s.effect, SCREENED, s.why_not.removeprefix(said).removeprefix("is "), gain=s.gain)
                      for s in steps if s.effect not in kept]
     by_effect = {s.effect: s for s in steps}
     partners = [by_effect[e] for e in kept]
