@@ -137,7 +137,7 @@ def _floor_line(res, floor, se, args) -> str:
 
     known = [o for o in floor if math.isfinite(floor[o])]
     if not known:
-        from stid.present import floor_words
+        from stid.analysis.noise_floor import floor_words
 
         return "  " + floor_words(floor, se)
     from stid.analysis.noise_floor import below_floor
@@ -147,7 +147,7 @@ def _floor_line(res, floor, se, args) -> str:
     text = (f"  noise floor (what a correct model reaches {on}): "
             + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in known))
     if len(known) < len(floor):
-        from stid.present import floor_words
+        from stid.analysis.noise_floor import floor_words
 
         text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
     if short and not res.converged:

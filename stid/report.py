@@ -68,11 +68,14 @@ def _png(fig) -> str:
 
 
 def chain_of(rounds) -> list:
-    """(model name, fit result) along the chain bicycle -> +effect -> +effect."""
+    """(model name, fit result) along the chain bicycle -> +effect -> +effect. A pair named in
+    one round is two links: its first effect alone (the fit that was bent), then both."""
     chain = [(rounds[0].model, rounds[0].base)]
     for d in rounds:
         if d.best is not None:
             chain.append((f"{d.model}+{d.best.effect}", d.best.result))
+            if d.best.pair_with:
+                chain.append((d.named_model, d.named_result))
     return chain
 
 
