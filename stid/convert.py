@@ -57,14 +57,21 @@ def steer_angle(steer_us, vehicle: Vehicle):
 START_LOOKBACK_S = 1.0
 
 
-def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float):
-    """Mean yaw rate while standing still, or None when the run never stands still. The last
-    ``START_LOOKBACK_S`` before the wheel sensor first sees motion is left out."""
+def still_samples(vx: np.ndarray, fs: float) -> np.ndarray:
+    """True where the car stands still, less the last ``START_LOOKBACK_S`` before the wheel
+    sensor sees it move off: the samples a gyro's zero is taken from."""
     mask = segments.still_mask(vx, fs)
     back = int(START_LOOKBACK_S * fs)
     for a, b in segments.runs_of(mask, 1):
         if b < len(mask):  # the car drives off after this stretch
             mask[max(a, b - back):b] = False
+    return mask
+
+
+def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float):
+    """Mean yaw rate while standing still (``still_samples``), or None when the run never
+    stands still for 0.5 s."""
+    mask = still_samples(vx, fs)
     if mask.sum() < 0.5 * fs:
         return None
     return float(np.mean(r[mask]))

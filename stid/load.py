@@ -177,8 +177,26 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
               meta={"source": str(path), "format": "csv", "notes": notes}, valid=valid)
     for w in warnings:
         run.warn(w)
+    _csv_gyro_zero(run)
     input_checks.check_kinematics(run, source="csv")
     return run
+
+
+def _csv_gyro_zero(run) -> None:
+    """The CSV contract has r in rad/s, not zeroed, and a gyro's zero drifts from run to run
+    (HARDWARE.md: estimate it from every run's stand-still): a CSV's stand-still sets it, as an
+    MCAP's and a ROS bag's do. Taking the still mean off an r that was zeroed already (stid
+    export) moves it by that mean, the noise's average. Said in a note either way."""
+    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs)
+    run.meta["gyro_bias"] = bias
+    notes = run.meta.setdefault("notes", [])
+    if bias is None:
+        notes.append("r taken as logged: the run never stands still (0.5 s or more) to show the gyro's zero")
+        return
+    still_s = float(np.sum(convert.still_samples(run.vx, run.fs))) / run.fs
+    run.r = run.r - bias
+    notes.append(f"gyro zero {bias:+.4f} rad/s ({np.degrees(bias):+.2f} deg/s), the mean of r over {still_s:.1f} s "
+                 "standing still, taken off r")
 
 
 def _check_units(path, cols):
