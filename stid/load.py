@@ -11,7 +11,7 @@ from host.errors import HostError
 from host.mcap_read import read_log
 from host.mcap_scan import holds_a_log
 from host import units
-from stid import convert, input_checks, sensor_chain
+from stid import convert, input_checks, sensor_chain, steer_clip
 from stid.errors import InputError
 from stid.ros import bag as ros_bag, topic_files
 from stid.run import Run
@@ -74,6 +74,15 @@ def _one_file(a, b) -> bool:
 
 
 def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
+    runs = _load_file(path, vehicle)
+    for run in runs:
+        clip = steer_clip.clip_warning(run, vehicle.L if vehicle is not None else None)
+        if clip:
+            run.warn(clip)
+    return runs
+
+
+def _load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path} does not exist")

@@ -16,7 +16,7 @@ import numpy as np
 
 from stid import sensor_chain
 from stid.errors import InputError
-from stid.fit import dataset
+from stid.fit import dataset, plausibility
 from stid.fit.solver import ParamSpace
 from stid.fit.steady_fit import fit_steady
 from stid.fit.time_fit import fit_time
@@ -61,6 +61,9 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
     else:
         result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
     for w in sensor_chain.undeclared_warnings(runs, vehicle):
+        result.warn(w)
+
+    for w in plausibility.stiffness_warnings(result, runs, vehicle):
         result.warn(w)
     return result
 
