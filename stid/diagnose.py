@@ -108,12 +108,12 @@ class Candidate:
                         "predicted_fit": {k: round(v, 2) for k, v in self.screen["fit"].items()}})
             return out
         res = self.result
-        ci = dict(zip(res.names, res.ci95))
         out.update({"fit": {k: round(v, 2) for k, v in res.fit.items()}, "delta_bic": round(self.delta_bic, 1),
+                    "converged": res.converged,
                     "lr": round(self.lr, 1), "p_value": float(f"{self.p_value:.3g}"),
                     "chance": p_in_words(self.p_value, self.level),
                     "params": self.own_params(),
-                    "intervals": {n: [float(ci[n][0]), float(ci[n][1])] for n in self.own_params()},
+                    "intervals": {n: res.interval_of(n) for n in self.own_params()},
                     "units": {n: res.units.get(n, "") for n in self.own_params()},
                     "explanation": self.explanation})
         if self.evidence is not None:
@@ -152,8 +152,8 @@ class Diagnosis:
     def to_json(self) -> dict:
         res = self.base
         out = {"model": self.model, "fit": {k: round(v, 2) for k, v in res.fit.items()},
-               "params": {n: {"value": float(v), "ci95": [float(lo), float(hi)], "unit": res.units[n]}
-                          for n, v, (lo, hi) in zip(res.names, res.values, res.ci95)},
+               "converged": res.converged, "status": res.status,
+               "params": {n: d for n, d in res.params_json().items() if n in res.names},
                "noise_floor": {k: round(v, 2) for k, v in self.floor.items()},
                "noise_floor_stderr": {k: round(v, 3) for k, v in self.floor_se.items()},
                "effective_samples": round(self.n_eff),
@@ -224,7 +224,9 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         need = {o: max(MIN_GAIN, GAP_FRACTION * gap[o]) for o in OUTS}
         enough = [o for o in OUTS if c.gain[o] >= need[o]]
         best_gain = max(c.gain.values())
-        if c.p_value >= level:
+        if not c.result.converged:  # where a solver stopped is no evidence either way
+            c.why_not = "its fit did not converge: " + c.result.status.split("not an optimum: ")[-1]
+        elif c.p_value >= level:
             c.why_not = f"not more than chance: {p_in_words(c.p_value, level)}"
         elif best_gain < MIN_GAIN:
             c.why_not = f"gains only {best_gain:.2f} fit points"

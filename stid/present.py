@@ -24,13 +24,13 @@ def _wrap(text: str, indent: str = "  ", first: str | None = None) -> list:
 
 
 def _params_with_intervals(res, owner=None) -> str:
-    ci = dict(zip(res.names, res.ci95))
     out = []
     for n, v in res.params().items():
         if owner is not None and res.owners.get(n) != owner:
             continue
-        lo, hi = ci[n]
-        out.append(f"{n} = {v:.4g} [{lo:.4g}, {hi:.4g}]{unit_suffix(res.units.get(n, ''))}")
+        ci = res.interval_of(n)
+        where = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else f"(no interval: {res.undetermined.get(n, '')})"
+        out.append(f"{n} = {v:.4g} {where}{unit_suffix(res.units.get(n, ''))}")
     return ", ".join(out)
 
 
@@ -90,6 +90,8 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
                      f"{floor_words(d.floor, d.floor_se)}   "
                      f"[{n} stretch{'es' if n != 1 else ''} at {', '.join(f'{v:g}' for v in speeds)} m/s]")
+        if not d.base.converged:
+            lines.extend(_wrap(d.base.verdict_line(), first="  "))
         if any(c.skipped or c.result is not None for c in d.candidates):
             lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:
@@ -159,6 +161,10 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
         white, indep = _which(e["white"]), _which(e["independent"])
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
                      f"{e['bic']:12.0f}  {white:<15}  {indep}")
+    for e in entries:
+        if not e.get("converged", True):
+            lines.extend(_wrap(f"{e['model']} did not converge: its row is where the solver stopped "
+                               f"({e['status']})", indent="  ", first=""))
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {})
     if all(math.isfinite(v) for v in fl.values()):
         lines.append(f"{'noise floor':<{w}}{_pct(fl['ay']):>8}{_pct(fl['r']):>8}   (what a correct model reaches; "
@@ -185,7 +191,8 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
 
 def _verdict(entries, runs=None, vehicle_path=None) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
-    best = min(entries, key=lambda e: e["bic"])
+    # a fit that did not converge is no candidate for the best (unless none did)
+    best = min([e for e in entries if e.get("converged", True)] or entries, key=lambda e: e["bic"])
 
     known = [o for o in ("ay", "r") if math.isfinite(fl[o])]
 

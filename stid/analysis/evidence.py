@@ -107,7 +107,7 @@ def disagreements(parts: dict, names) -> list:
         for n in names:
             vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n),
                      dict(zip(g.result.names, g.result.half95)).get(n)) for g in groups]
-            vals = [v for v in vals if v[2] is not None]
+            vals = [v for v in vals if v[2] is not None and np.all(np.isfinite(v[2]))]
             bad = False
             for i in range(len(vals)):
                 for j in range(i + 1, len(vals)):
@@ -137,6 +137,9 @@ def check_evidence(model_name: str, effect: str, vehicle, stretches, result, map
     parts = fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
     for kind, groups in parts.items():
         for g in groups:
+            if not g.result.converged:  # its values are where a solver stopped: they show nothing
+                return Evidence(False, f"fitted at {g.label} alone, the fit did not converge ({g.result.status})",
+                                parts)
             s = at_bound(g.result, own, model)
             if s:
                 return Evidence(False, f"fitted at {g.label} alone, {', '.join(s)} stopped at a bound "
