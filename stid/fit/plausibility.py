@@ -49,7 +49,7 @@ def stiffness_warnings(result, runs, vehicle) -> list[str]:
         return []
     lo, hi = PLAUSIBLE_PER_RAD
     loads = axle_loads(vehicle)
-    odd, parts, ruled_out = [], [], False
+    odd, parts, verdicts = [], [], []
     for name, axle in AXLES.items():
         c = params[name] / loads[name]
         if lo <= c <= hi:
@@ -57,11 +57,12 @@ def stiffness_warnings(result, runs, vehicle) -> list[str]:
         odd.append(c < lo)
         ci = _interval(result, name)
         reach = ""
-        if ci is not None:
+        if ci is None:  # fixed by the steady-state step, or not determined
+            verdicts.append(None)
+        else:
             c_lo, c_hi = ci[0] / loads[name], ci[1] / loads[name]
-            if c_hi < lo or c_lo > hi:
-                ruled_out = True
-            else:
+            verdicts.append(c_hi < lo or c_lo > hi)
+            if not verdicts[-1]:
                 reach = f"; its interval reaches {c_hi if c < lo else c_lo:.3g} /rad"
         parts.append(f"{name} {params[name]:.4g} N/rad is {c:.2g} /rad of the {axle} axle's load "
                      f"({loads[name]:.3g} N{reach})")
@@ -71,10 +72,14 @@ def stiffness_warnings(result, runs, vehicle) -> list[str]:
     kind = "soft" if soft else ("stiff" if not any(odd) else "soft and stiff")
     line = (" and ".join(parts) + f", where tyres give {lo:g}-{hi:g} /rad (scale cars 4-10; "
             "docs/plausibility.md): ")
-    line += (f"no tyre is that {kind}: the model takes something it lacks for {kind} tyres, and a longer run "
-             "will not change that. " if ruled_out else
-             f"not a tyre's value, though the interval does not rule one out; if it holds, the model takes "
-             f"something it lacks for {kind} tyres. ")
+    if any(verdicts):
+        line += (f"no tyre is that {kind}: the model takes something it lacks for {kind} tyres, and a longer run "
+                 "will not change that. ")
+    elif False in verdicts:
+        line += (f"not a tyre's value, though the interval does not rule one out; if it holds, the model takes "
+                 f"something it lacks for {kind} tyres. ")
+    else:
+        line += f"not a tyre's value: if the data hold it, the model takes something it lacks for {kind} tyres. "
     return [line + _steering_words(runs, vehicle)]
 
 
