@@ -64,7 +64,7 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
             from stid.diagnose import diagnose
 
             (d,) = diagnose(runs, vehicle, model)
-            row["missing_effect"] = d.best.effect if d.best else ""
+            row["missing_effect"] = "+".join(d.named)  # (two when a pair is named)
         row["error"] = ""
     except (StidError, HostError, ValueError) as e:
         row["error"] = str(e)

@@ -69,6 +69,8 @@ def _cmd_fit(args) -> int:
         doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
         doc["noise_floor_stderr"] = {k: round(v, 3) for k, v in floor_se.items()}
         # (fit points short of the floor: when not empty, the intervals assume a model that is not right)
+        from stid.analysis.noise_floor import below_floor
+
         doc["below_floor"] = below_floor(judged, floor, floor_se)
         print(_json(doc))
     else:
@@ -128,16 +130,6 @@ def _judge(res, model_name, vehicle, stretches, held, floor=None):
     return judge_on(res, Model(model_name, vehicle), stretches), floor, se
 
 
-def below_floor(res, floor, se) -> dict:
-    """Per output, how many fit points the model is short of the noise floor, where that is more
-    than chance (2.576 standard errors of the floor) and 2 points: its intervals then hold only
-    if the model were right."""
-    import math
-
-    return {o: round(floor[o] - res.fit[o], 2) for o in floor
-            if o in res.fit and math.isfinite(floor[o]) and floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
-
-
 def _floor_line(res, floor, se, args) -> str:
     if not res.fit or not all(k in floor for k in res.fit):
         return ""
@@ -145,15 +137,17 @@ def _floor_line(res, floor, se, args) -> str:
 
     known = [o for o in floor if math.isfinite(floor[o])]
     if not known:
-        from stid.present import floor_words
+        from stid.analysis.noise_floor import floor_words
 
         return "  " + floor_words(floor, se)
+    from stid.analysis.noise_floor import below_floor
+
     short = below_floor(res, floor, se)
     on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"
     text = (f"  noise floor (what a correct model reaches {on}): "
             + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in known))
     if len(known) < len(floor):
-        from stid.present import floor_words
+        from stid.analysis.noise_floor import floor_words
 
         text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
     if short and not res.converged:

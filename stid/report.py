@@ -21,6 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from stid.analysis.noise_floor import below_floor  # noqa: E402
 from stid.analysis.residuals import analyse  # noqa: E402
 from stid.diagnose import diagnose  # noqa: E402
 from stid.errors import InputError  # noqa: E402
@@ -67,11 +68,14 @@ def _png(fig) -> str:
 
 
 def chain_of(rounds) -> list:
-    """(model name, fit result) along the chain bicycle -> +effect -> +effect."""
+    """(model name, fit result) along the chain bicycle -> +effect -> +effect. A pair named in
+    one round is two links: its first effect alone (the fit that was bent), then both."""
     chain = [(rounds[0].model, rounds[0].base)]
     for d in rounds:
         if d.best is not None:
             chain.append((f"{d.model}+{d.best.effect}", d.best.result))
+            if d.best.pair_with:
+                chain.append((d.named_model, d.named_result))
     return chain
 
 
@@ -493,9 +497,18 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
              _figure("The error falls", error_fall_figure(chain, floor)),
              _figure("The logged runs", overview_figure(runs)),
              "<h2>Along the chain</h2>"]
-    for name, res in chain:
+    for k, (name, res) in enumerate(chain):
         parts.append(f"<section class='keep'><h3>{html.escape(name)}: fit ay {res.fit['ay']:.1f}%, "
                      f"r {res.fit['r']:.1f}%</h3>" + _params_table(res))
+        short = below_floor(res, floor, rounds[0].floor_se)
+        if short:
+            parts.append("<p class='warn'>" + html.escape(
+                f"{name} is {', '.join(f'{o} {g:.1f}' for o, g in short.items())} points below the noise floor: "
+                "its intervals hold only if it were right (a model that misses an effect bends its parameters "
+                "to make up for it, by more than the intervals show)"
+                + ("; the next model's are the ones to read" if k < len(chain) - 1 else
+                   "; where it still fails is shown below"))
+                + "</p>")
         for w in res.warnings:
             parts.append(f"<p class='warn'>warning: {html.escape(w)}</p>")
         parts.append("</section>")

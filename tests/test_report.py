@@ -163,3 +163,6 @@ def test_the_page_opens_with_the_story_and_keeps_headings_with_their_figures(sto
     assert page.index("The error falls") < page.index("<pre>")  # the figure first, the text dump last
     assert page.index("class='story'") < page.index("The error falls")
     assert "break-after:avoid" in page and "break-inside:avoid" in page
+    # the bicycle's intervals are not read as an answer: it is far below the floor
+    bicycle = page[page.index("<h3>bicycle:"):page.index("<h3>", page.index("<h3>bicycle:") + 5)]
+    assert "its intervals hold only if it were right" in bicycle
