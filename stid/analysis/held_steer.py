@@ -88,7 +88,7 @@ class SteeringGain:
     """L r / (vx steer) over the holds: how much of the logged steer the car turned by."""
 
     gain: float
-    se: float  # standard error from the holds' scatter (nan with one hold)
+    se: float  # standard error from the holds' scatter (nan with fewer than three)
     seconds: float
     n: int
     speeds: tuple  # (slowest, fastest) hold speed [m/s]
@@ -103,8 +103,9 @@ class SteeringGain:
     def words(self) -> str:
         v0, v1 = self.speeds
         speeds = f"{v0:.1f} m/s" if round(v0, 1) == round(v1, 1) else f"{v0:.1f}-{v1:.1f} m/s"
-        return (f"L r / (vx steer) = {self.gain:.2f} over {self.seconds:.1f} s of held steer ({self.n} hold{'s' if self.n != 1 else ''}, "
-                f"{speeds}), where tyres give {self.band[0]:.2f}-{self.band[1]:.2f}")
+        holds = f"{self.n} hold{'s' if self.n != 1 else ''}"
+        return (f"L r / (vx steer) = {self.gain:.2f} over {self.seconds:.1f} s of held steer ({holds}, {speeds}), "
+                f"where tyres give {self.band[0]:.2f}-{self.band[1]:.2f}")
 
 
 def tyre_band(speed_sq: float, wheelbase: float, c_range) -> tuple:

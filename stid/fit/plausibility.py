@@ -88,9 +88,9 @@ def _steering_words(runs, vehicle) -> str:
 
     gain = held_steer.steering_gain(runs, vehicle.L, PLAUSIBLE_PER_RAD)
     if gain is None:
-        return ("The runs hold the steer for under a second while moving slowly and gently, so the steering calibration "
-                "could not be checked from them (L r / (vx steer), held): check it, the mass and a, b, and what "
-                "lags between the steer and the response (stid diagnose)")
+        return ("The runs hold the steer for under a second while moving slowly and gently, so the steering "
+                "calibration could not be checked from them (L r / (vx steer), held): check it, the mass and a, b, "
+                "and what lags between the steer and the response (stid diagnose)")
     if not SCALE_TOLERANCE[0] <= gain.speed_ratio <= SCALE_TOLERANCE[1]:
         return (f"Held, the car turned {gain.gain:.2f} of the logged steer ({gain.words()}), but ay is "
                 f"{gain.speed_ratio:.2f} of vx r there: the speed or a sensor's scale reads wrong, which moves "
