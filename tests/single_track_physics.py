@@ -52,7 +52,6 @@ def drive(car: Car, steer, fs, speed, dt=2e-3):
     linearly between samples) at speed ``speed`` (an array at ``fs`` or a number).
     Returns (ay, r, vy) at the samples."""
     n = len(steer)
-    t = np.arange(n) / fs
     v = np.broadcast_to(np.asarray(speed, float), (n,))
     m, a, b, Iz, Cf, Cr = car.mass, car.a, car.b, car.Iz, car.Cf, car.Cr
 
