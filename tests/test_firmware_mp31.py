@@ -89,10 +89,12 @@ def test_ring_on_31_bits():
 
 @pytest.mark.parametrize("board, variant", [("pico", "default"), ("pico", "irq"),
                                             pytest.param("pico", "cpu", marks=pytest.mark.slow),
-                                            ("esp32", "default")])
+                                            ("esp32", "default"),
+                                            pytest.param("esp32", "irq", marks=pytest.mark.slow)])
 def test_firmware_across_the_tick_wrap_on_31_bits(board, variant):
     """Pico: hard timer with the ADC scan and the PIO servo (default), with the pin-IRQ servo
-    (irq), with neither (cpu); ESP32: soft timer, pin-IRQ servo. Ticks start 2 s before the
+    (irq), with neither (cpu); ESP32: soft timer with the pulse counter (PCNT) timing the
+    servo (default), or pin IRQs (irq: a MicroPython without esp32.PCNT). Ticks start 2 s before the
     wrap and the firmware's counters (sample index, ring, frame numbers) 1-4 s before theirs;
     drive 3 s, receiver off 1 s, drive 2 s. Every interrupt and main-loop pass with the heap
     locked: main's sampler.py dies here at the wrap (MemoryError, timer stopped)."""
@@ -100,6 +102,8 @@ def test_firmware_across_the_tick_wrap_on_31_bits(board, variant):
     assert tot["int_bits"] == 31
     assert tot["isr_errors"] == tot["pin_irq_errors"] == tot["main_loop_errors"] == 0
     assert tot["samples"] >= 2980 and tot["pulses"] == 250 and tot["edges"] > 500 and tot["bounces"] > 100
+    servo = {"default": "ServoPulsePio" if board == "pico" else "ServoPulsePcnt"}.get(variant, "ServoPulse")
+    assert tot["capture"][1] == servo
 
 
 @pytest.mark.parametrize("board", ["pico", "esp32"])

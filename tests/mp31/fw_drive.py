@@ -4,7 +4,8 @@
 # instant on the nominal grid. Interrupts and the main loop run with the heap locked.
 #
 # The car is written here from plain rules, not from the project's simulator: servo
-# pulses every 20 ms (widths 1000..1999 us, a fixed pattern), hall edges every 6-11 ms
+# pulses every 20 ms (or `servo_period_us`: surface receivers send 91-333 Hz frames;
+# widths 1000..1999 us, a fixed pattern), hall edges every 6-11 ms
 # while driving with a contact bounce 40 us after every fifth, none while parked; the
 # receiver is off while parked (no servo pulses at all).
 #
@@ -15,7 +16,13 @@ import scripted_board
 
 MASK30 = 0x3FFFFFFF
 SERVO_PERIOD_US = 20000
-STEER_STALE_LIMIT_US = 3 * SERVO_PERIOD_US  # the promise: stale within 3 servo periods
+
+
+def steer_stale_limit_us(servo_period_us):
+    # the promise: stale within 3 servo periods of 20 ms; faster frames keep the firmware's
+    # 50 ms timeout (one lost pulse must not read as the receiver off), so within 60 ms
+    return max(3 * servo_period_us, 60000)
+
 _BOUNCE_US = 40
 
 
@@ -82,8 +89,9 @@ def _main_loop(fw):
 
 
 class Drive:
-    def __init__(self, board, start_ticks=0, pio=True, dma=True, rate=500, counters_near_wrap=True):
-        self.b = scripted_board.new_board(board, start_ticks=start_ticks, pio=pio, dma=dma)
+    def __init__(self, board, start_ticks=0, pio=True, dma=True, pcnt=True, rate=500, counters_near_wrap=True,
+                 servo_period_us=SERVO_PERIOD_US):
+        self.b = scripted_board.new_board(board, start_ticks=start_ticks, pio=pio, dma=dma, pcnt=pcnt)
         import app
 
         self.sink = Sink(4 * rate)
@@ -103,7 +111,8 @@ class Drive:
         self.first_tick = self.b.timer_due
         self.idx0 = self.fw.sampler.index
         # the car's truth
-        self.next_rise = 3000  # servo pulse k rises at 3000 + 20000 k
+        self.servo_period = servo_period_us
+        self.next_rise = 3000  # servo pulse k rises at 3000 + servo_period k
         self.k_pulse = 0
         self.pulse_rise = 0  # abs us of the pulse under way: its rise, width and fall (-1: none)
         self.pulse_w = 0
@@ -147,9 +156,9 @@ class Drive:
         if not driving:
             self.next_edge = -1
         if rx_on and not self.rx_on:
-            k = (b.abs_us - 3000) // SERVO_PERIOD_US + 1
+            k = (b.abs_us - 3000) // self.servo_period + 1
             self.k_pulse = k
-            self.next_rise = 3000 + SERVO_PERIOD_US * k
+            self.next_rise = 3000 + self.servo_period * k
             self.stale_seen = True
         if not rx_on and self.rx_on:
             self.next_rise = -1
@@ -185,7 +194,7 @@ class Drive:
                 self.pulse_rise = t
                 b.fire_pin(self.steer_pin, 1)
                 self.k_pulse += 1
-                self.next_rise = 3000 + SERVO_PERIOD_US * self.k_pulse if self.rx_on else -1
+                self.next_rise = 3000 + self.servo_period * self.k_pulse if self.rx_on else -1
             elif which == 2:
                 b.fire_pin(self.steer_pin, 0)
                 b.pio_pulse(self.pulse_rise, t)
