@@ -361,6 +361,9 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
             if no_exact.any():
                 valid = ~no_exact if valid is None else valid & ~no_exact
             sig["steer"] = _filled(exact, tu)
+            fall, width = convert.logged_pulses(t_us, s["t_us"], s["steer_us"], s["steer_t_us"],
+                                                int(hello.get("mod", 1 << 30)))
+            few = fast_receiver_warning(fall - width, 1e6 / step)
     t = (tu - tu[0]) * 1e-6
     fs = 1e6 / step
     run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig.get("ax"),
@@ -383,6 +386,8 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
             "values interpolated to the sample grid from their measured times")
     if filled:
         run.meta["link_lost"] = int(filled)  # (said once for the whole log: _link_losses)
+    if timed and few:
+        run.warn(few)
     if no_pulse.mean() > 0.01:
         run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): the steer is "
                  "unknown there, and those samples are left out")
@@ -399,6 +404,31 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
                                "wheel_radius": vehicle.wheel_radius, "sensors": vehicle.sensors,
                                "gyro_bias_rad_s": bias}
     return run
+
+
+PULSES_LOGGED_MIN = 0.9  # below this share of the receiver's pulses in the records, say so
+
+
+def fast_receiver_warning(rise_us: np.ndarray, fs: float) -> str | None:
+    """A warning when the records carry only part of the receiver's pulses: a record holds the
+    latest pulse at its instant, so a receiver that sends frames faster than the firmware
+    samples (surface receivers: 91-333 Hz) has pulses no record holds. Their commands are
+    interpolated between the recorded ones (convert._fill_lost_pulses); a step between two
+    records is placed where the interpolation puts it, not where it was."""
+    period = convert.receiver_period_us(rise_us)
+    share = convert.pulses_in_log(rise_us, period)
+    if share is None or share >= PULSES_LOGGED_MIN:
+        return None
+    rx_hz = 1e6 / period
+    return (f"the receiver sent a servo pulse every {period / 1e3:.1f} ms ({rx_hz:.0f} Hz) and the firmware "
+            f"sampled at {fs:.0f} Hz: each sample records only the latest pulse, so {100 * share:.0f}% of them are "
+            f"in this log; the others' commands are interpolated between them. Log at {_rate_above(rx_hz)} Hz or "
+            "more (stid flash --rate) to record every pulse")
+
+
+def _rate_above(hz: float) -> int:
+    # the lowest rate that divides 10^6 (the firmware's grid is whole us) at or above hz
+    return next(r for r in (100, 125, 200, 250, 400, 500, 625, 1000, 2000, 2500, 5000) if r >= hz)
 
 
 def scheduled_steer_note(hello: dict) -> str | None:

@@ -107,6 +107,19 @@ def test_firmware_across_the_tick_wrap_on_31_bits(board, variant):
 
 
 @pytest.mark.parametrize("board", ["pico", "esp32"])
+def test_a_surface_receivers_333_hz_frames_at_100_hz_on_31_bits(board):
+    """The receiver's frames every 3 ms, the sampler every 10 ms: 3.3 pulses per period. Every
+    sample must carry the latest pulse before its instant (the Pico's PIO FIFO holds 4 pulses;
+    the ESP32's pulse counter needs a poll while the line is low between two pulses: 0.3.2
+    polled at rising edges only and dropped every pulse here, the steer read 0). Across the
+    wrap, heap locked. (The samples then hold 3 pulses in 10: the loader puts the others back,
+    stid.convert.receiver_period_us.)"""
+    tot = passed(mp31(MP31 / "mp31_run.py", board, "default", "wrap", 100, 3000, timeout=240))
+    assert tot["int_bits"] == 31 and tot["servo_period_us"] == 3000
+    assert tot["pulses"] > 1600 and tot["samples"] >= 585  # (the last frame still in the ring)
+
+
+@pytest.mark.parametrize("board", ["pico", "esp32"])
 def test_nine_minutes_of_lost_ticks_do_not_overflow_ticks_add_on_31_bits(board):
     """The sampler steps over lost periods with ticks_add, which refuses |delta| >= 2^29: the
     main loop's last bytecode ~9 min (2^29 us less a margin) after the last tick served, then
