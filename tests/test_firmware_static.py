@@ -20,7 +20,7 @@ HOT = {
     "pulses.py": None,
     "adc_scan.py": ["latch", "skip", "_reader"],
     "servo_pio.py": ["_drain", "read"],
-    "servo_pcnt.py": ["_rise", "_poll", "_learn_period", "_place", "read"],
+    "servo_pcnt.py": ["_edge", "_poll", "_learn_period", "_place", "read"],
     "codec.py": ["crc32_store", "cobs_encode", "copy_bytes", "FrameEncoder"],
     "app.py": ["_send", "send_hello", "send_hello_compact", "send_status", "pump", "service",
                "feed_watchdog", "check_escape", "_poll_ready"],

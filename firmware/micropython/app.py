@@ -33,7 +33,7 @@ from pulses import HallCounter, ServoPulse
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = (0, 3, 2)  # 0.3.2: issue 22 (31-bit integers, stale steer, long stops, host stalls, ESP32 servo by PCNT)
+FW_VERSION = (0, 3, 3)  # 0.3.3: ESP32 servo polled at both edges (fast receivers), 9 min of lost ticks; 0.3.2: issue 22
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
 _COMPACT_HELLO_PERIOD_MS = const(1000)
