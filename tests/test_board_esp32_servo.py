@@ -65,7 +65,7 @@ def test_scheduled_pin_irqs_miss_and_misplace_servo_pulses(tmp_path):
 def test_pulse_counter_times_every_servo_pulse_to_a_microsecond(tmp_path, rate, seconds, jitter):
     stim = _stimulus(tmp_path / "s.bin", seconds, jitter_us=jitter)
     dec, idx, arr, status, hellos = _run(tmp_path / "s.bin", rate=rate)
-    assert _capture(hellos) == {"adc": "cpu", "servo": "pcnt"}
+    assert _capture(hellos) == {"adc": "cpu", "servo": "pcnt", "hall": "pcnt"}
     t_err, w_err, n = _servo_errors(stim, arr)
     assert n == len(stim.steer_us)  # every pulse seen
     # widths: the count of a 1 MHz clock over the pulse, whose edges have sub-us phases
@@ -110,7 +110,7 @@ def test_pulse_counter_at_a_surface_receivers_333_hz(tmp_path, rate):
     from every poll (dropped, counted in `merged`: the record keeps the one before)."""
     stim = _stimulus(tmp_path / "s.bin", 4.0, period_us=3001)
     dec, idx, arr, status, hellos = _run(tmp_path / "s.bin", rate=rate)
-    assert _capture(hellos) == {"adc": "cpu", "servo": "pcnt"}
+    assert _capture(hellos) == {"adc": "cpu", "servo": "pcnt", "hall": "pcnt"}
     in_force, exists, judged = _in_force(stim, arr)
     assert judged.sum() > 0.95 * 4 * rate
     assert np.all(exists[judged & (arr["steer_us"] > 0)])  # no pulse misplaced

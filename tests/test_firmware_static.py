@@ -21,6 +21,7 @@ HOT = {
     "adc_scan.py": ["latch", "skip", "_reader"],
     "servo_pio.py": ["_drain", "read"],
     "servo_pcnt.py": ["_edge", "_poll", "_learn_period", "_place", "read"],
+    "hall_pcnt.py": ["_edge", "_poll", "snap"],
     "codec.py": ["crc32_store", "cobs_encode", "copy_bytes", "FrameEncoder"],
     "app.py": ["_send", "send_hello", "send_hello_compact", "send_status", "pump", "service",
                "feed_watchdog", "check_escape", "_poll_ready"],

@@ -50,8 +50,10 @@ class PCNT:
             for m in (u.mode_low, u.mode_high):
                 if m not in (PCNT.NORMAL, PCNT.HOLD):
                     raise ValueError("scripted board: only NORMAL and HOLD are modelled")
-        if filter is not _UNSET and not 0 <= filter <= 1023:
-            raise ValueError("filter")
+        if filter is not _UNSET:
+            if not 0 <= filter <= 1023:
+                raise ValueError("filter")
+            u.filter_us = filter // 80  # APB cycles at 80 MHz
         clear = False
         if value is not _UNSET:
             if value != 0:

@@ -104,6 +104,20 @@ class Board:
                 self.hard_edge_errors += 1
                 self.last_error = e
 
+    def glitch(self, pin, level, us):
+        # the pin goes to `level` for `us` microseconds (glitch_end brings it back): pin IRQs
+        # see both edges; a pulse counter whose filter is longer than the glitch counts neither
+        # (a unit gated by the pin does follow it: its own filter is short enough for a 1 MHz
+        # clock)
+        for u in self.units:
+            u.filtering = u.pin == pin and u.filter_us > us
+        self.fire_pin(pin, level)
+
+    def glitch_end(self, pin, level):
+        self.fire_pin(pin, level)
+        for u in self.units:
+            u.filtering = False
+
     def fire_timer(self):
         # one timer tick, heap locked (hard on rp2; scheduled on the ESP32, but the
         # firmware promises no allocation there either); rp2 drops a hard timer that raised
@@ -171,6 +185,8 @@ class PcntUnit:
         self.h_lim = 0
         self.reg = 0
         self.running = False
+        self.filter_us = 0  # the glitch filter (PCNT `filter`, APB cycles of 12.5 ns), in us
+        self.filtering = False  # inside a glitch the filter removes
 
     def set_pins(self, pin, ctrl):
         self.pin = pin
@@ -201,7 +217,7 @@ class PcntUnit:
 
     def edge(self, pin, level):
         # a pin edge, before the board's level changes
-        if self.running and pin == self.pin and self._counts():
+        if self.running and pin == self.pin and not self.filtering and self._counts():
             if (self.rising if level else self.falling) == PcntUnit.INCREMENT:
                 self._add(1)
 
