@@ -143,21 +143,18 @@ def _open_servo(profile):
     return ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US), "irq"
 
 
-def _open_halls(profile, wheel_list, steer, servo_mode):
-    """(hall counters in record order, HELLO capture.hall): one ESP32 sensor counted and timed
-    by two pulse-counter units against the servo's 1 MHz clock (hall_pcnt.py); otherwise pin
-    interrupts ("irq"). Four sensors would need 8 units beside the servo's 2 (the ESP32 has 8):
+def _open_hall_pcnt(profile, wheel_list):
+    """One ESP32 hall sensor counted and timed by two pulse-counter units against the servo's
+    1 MHz clock (hall_pcnt.py), or None. Set up before the servo starts that clock (see
+    hall_pcnt.py). Four sensors would need 8 units beside the servo's 2 (the ESP32 has 8):
     they stay on pin interrupts."""
-    debounce = profile["hall_debounce_us"]
-    if servo_mode == "pcnt" and len(wheel_list) == 1:
-        try:
-            from hall_pcnt import HallCounterPcnt
-            hall = HallCounterPcnt(wheel_list[0][1], profile["servo_clock_pin"], _HALL_PCNT_UNITS)
-            steer.restart_clock()
-            return [hall], "pcnt"
-        except (ImportError, AttributeError, OSError, ValueError):  # no esp32.PCNT, or a unit refused
-            pass
-    return [HallCounter(pin, debounce) for _, pin in wheel_list], "irq"
+    if profile.get("servo_clock_pin") is None or len(wheel_list) != 1:
+        return None
+    try:
+        from hall_pcnt import HallCounterPcnt
+        return HallCounterPcnt(wheel_list[0][1], profile["servo_clock_pin"], _HALL_PCNT_UNITS)
+    except (ImportError, AttributeError, OSError, ValueError):  # no esp32.PCNT, or a unit refused
+        return None
 
 
 class App:
@@ -188,8 +185,13 @@ class App:
         period_us = 1000000 // rate_hz
         scan, readers, adc_mode = _open_scan(profile, readers, period_us)
         self.scan = scan
+        hall = _open_hall_pcnt(profile, wheel_list)  # before the servo's clock starts
         self.steer, servo_mode = _open_servo(profile)
-        self.wheels, hall_mode = _open_halls(profile, wheel_list, self.steer, servo_mode)
+        if hall is not None and servo_mode != "pcnt":  # no clock (its self-test failed): no low time
+            hall.stop()
+            hall = None
+        hall_mode = "irq" if hall is None else "pcnt"
+        self.wheels = [hall] if hall else [HallCounter(pin, profile["hall_debounce_us"]) for _, pin in wheel_list]
         self.wheel = self.wheels[0]
         self.ring = SampleRing(ring_size, self.record_size)
         self.sampler = Sampler(self.ring, readers, self.steer, self.wheels, period_us, scan)

@@ -64,7 +64,6 @@ class ServoPulsePcnt(ServoPulse):
         self.unanchored = 0  # pulses no poll saw high: fall time from the span it lies in
         self.merged = 0  # poll gaps that held more than one pulse: dropped
         clk = Pin(clock_pin)
-        self._clk = clk
         P = esp32.PCNT
         a = P(units[0], min=-_RANGE, max=_RANGE, filter=_FILTER)
         # first count the clock whatever the servo line does: the self-test
@@ -201,14 +200,6 @@ class ServoPulsePcnt(ServoPulse):
         # is pulses.ServoPulse's rule, shared
         self._poll()
         return ServoPulse.read(self, now, before)
-
-    def restart_clock(self):
-        # Another PCNT unit was just set up on the clock pin (hall_pcnt.py): pcnt_set_pin made
-        # the pad an input, so its PWM no longer drives it. A new PWM channel drives it again
-        # with its input kept on (machine_pwm.c reconfigure_pin); a re-init of this one would
-        # only change its duty. Called before sampling starts.
-        self._pwm.deinit()
-        self._pwm = PWM(self._clk, freq=_CLOCK_HZ, duty_u16=32768)
 
     def stop(self):
         self.pin.irq(handler=None)
