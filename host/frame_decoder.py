@@ -169,11 +169,13 @@ def decode_compact_hello(body: bytes, version: int = p.VERSION) -> dict:
         "sim": bool(f["flags"] & p.HELLO_C_FLAG_SIM),
         "hello": "compact",
     }
-    if f["flags"] & (p.HELLO_C_FLAG_ADC_DMA | p.HELLO_C_FLAG_SERVO_PIO | p.HELLO_C_FLAG_SERVO_PCNT):
+    if f["flags"] & (p.HELLO_C_FLAG_ADC_DMA | p.HELLO_C_FLAG_SERVO_PIO | p.HELLO_C_FLAG_SERVO_PCNT | p.HELLO_C_FLAG_HALL_PCNT):
         servo = ("pio" if f["flags"] & p.HELLO_C_FLAG_SERVO_PIO else
                  "pcnt" if f["flags"] & p.HELLO_C_FLAG_SERVO_PCNT else "irq")
         doc["capture"] = {"adc": "dma" if f["flags"] & p.HELLO_C_FLAG_ADC_DMA else "cpu", "servo": servo}
-    # absent: cpu and irq
+        if f["flags"] & p.HELLO_C_FLAG_HALL_PCNT:
+            doc["capture"]["hall"] = "pcnt"
+    # absent: cpu and irq (and hall irq)
     return doc
 
 

@@ -99,7 +99,10 @@ HELLO_SCHEMA = _obj(
          "bytes_per_sample": {**_NUM, "description": "on the wire, framing shared by a batch"}})]},
      "capture": _obj("how the board captures its inputs (absent: both by the CPU)", {
          "adc": {**_STR, "description": "cpu (read in the timer interrupt) or dma (a hardware scan)"},
-         "servo": {**_STR, "description": "irq (pin interrupts) or pio (a PIO state machine)"}}),
+         "servo": {**_STR, "description": "irq (pin interrupts), pio (a PIO state machine) or pcnt (the ESP32's "
+                                            "pulse counter)"},
+         "hall": {**_STR, "description": "pcnt: hall edges counted and timed by the ESP32's pulse counter "
+                                         "(absent: pin interrupts)"}}),
      "sim": {"type": "boolean"}, "hello": {**_STR_OR_NULL, "description": "full or compact"},
      "supplied_from": {**_STR, "description": "set when this HELLO was not received but taken "
                                               "from a vehicle file or an earlier log"},

@@ -130,6 +130,7 @@ HELLO_C_FLAG_SIM = 2
 HELLO_C_FLAG_ADC_DMA = 4  # analog channels scanned by the ADC into a DMA ring (else read by the CPU)
 HELLO_C_FLAG_SERVO_PIO = 8  # servo pulses timed by a PIO state machine (else pin interrupts)
 HELLO_C_FLAG_SERVO_PCNT = 16  # servo pulses timed by the ESP32's pulse counter (firmware 0.3.2)
+HELLO_C_FLAG_HALL_PCNT = 32  # hall edges counted and timed by the ESP32's pulse counter (firmware 0.3.3)
 HELLO_C_RESET_CAUSES = ("unknown", "power_on", "hard", "watchdog", "deepsleep", "soft")
 HELLO_C_PARTS = (None, ("ADXL335", "ratiometric"), ("LISY300AL", "absolute"), ("divider", "absolute"))
 HELLO_C_ADC_UNITS = ("count", "mV")

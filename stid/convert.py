@@ -100,16 +100,11 @@ def steer_at_servo_times(t_mcu_us: np.ndarray, t_raw_us: np.ndarray, steer_us: n
     were used).
     """
     us = np.asarray(steer_us, float)
-    t_fall = np.asarray(steer_t_us, np.int64)
-    ok = (us > 0) & (t_fall != STEER_T_UNKNOWN)
-    if not ok.any():
+    f, w = logged_pulses(t_mcu_us, t_raw_us, steer_us, steer_t_us, mod)
+    if not len(f):
         return None, False
-    age = (np.asarray(t_raw_us, np.int64) - t_fall) % mod
-    fall = np.asarray(t_mcu_us, np.int64) - age
-    # one event per pulse: its fall time and command
-    f, first = np.unique(fall[ok], return_index=True)
-    c = ((us[ok] - vehicle.steer_center_us) / vehicle.steer_us_per_rad)[first]
-    f, c = _fill_lost_pulses(f, c)
+    c = (w - vehicle.steer_center_us) / vehicle.steer_us_per_rad
+    f, c = _fill_lost_pulses(f, c, receiver_period_us(f - w))
     # cumulative integral of the staircase at the events; value held after the last one,
     # and the first command extended back to the start
     cum = np.concatenate([[0.0], np.cumsum(c[:-1] * np.diff(f))])
@@ -126,22 +121,79 @@ def steer_at_servo_times(t_mcu_us: np.ndarray, t_raw_us: np.ndarray, steer_us: n
     return np.where(no_pulse, np.nan, steer), True
 
 
-def _fill_lost_pulses(fall: np.ndarray, cmd: np.ndarray):
-    """Pulses whose every sample was lost on the link leave a hole in the staircase: the
-    servo did receive them. A receiver sends at a steady period, so the missing edges are
-    put back at that period and their commands interpolated between the neighbours (far
-    closer to what the servo got than holding the last one through the hole; the
-    outputs there are left out of the fit anyway, this only keeps the model's state
-    right after the hole)."""
+RECEIVER_PERIOD_MIN_US = 2500  # the fastest receivers' frames: 400 Hz
+MAX_FILLED = 10  # pulses put back in one hole; a longer one is the receiver off, not pulses lost
+
+
+def receiver_period_us(rise: np.ndarray) -> float | None:
+    """The receiver's frame period [us] from the rising edges of the pulses the records
+    carry (falling edge less width: the receiver's own clock, whatever the commands), or None.
+
+    A record carries only the latest pulse at its instant: at a sample rate below the
+    receiver's frame rate (a surface receiver at 333 Hz, the firmware at 100 Hz) the pulses
+    logged are 3 or 4 frames apart, never one. Every gap is still a whole number of frames:
+    the period is the largest one of which 95% of the gaps (within 2% of a period or 30 us)
+    are whole multiples, found by dividing the shortest gap by 1, 2, 3, ... A receiver
+    phase-locked to the sampler (every gap the same multiple) cannot be told from a slower
+    one by its edges alone."""
+    d = np.diff(np.sort(np.asarray(rise, np.int64))).astype(float)
+    d = d[d > 0]
+    if len(d) < 8:
+        return None
+    base = float(np.percentile(d, 2))
+    for n in range(1, 9):
+        period = base / n
+        if period < RECEIVER_PERIOD_MIN_US:
+            return None
+        k = np.round(d / period)
+        fits = (k >= 1) & (np.abs(d - k * period) <= max(0.02 * period, 30.0))
+        if fits.mean() >= 0.95:
+            near = fits & (k <= MAX_FILLED + 1)
+            return float(np.sum(d[near]) / np.sum(k[near]))  # every fitting gap's frames, not only the shortest
+    return None
+
+
+def pulses_in_log(rise: np.ndarray, period_us: float | None) -> float | None:
+    """The fraction of the receiver's pulses the records carry (from their rising edges),
+    while it was on (gaps longer than MAX_FILLED + 1 frames are the receiver off, not
+    counted); None without a period."""
+    if period_us is None or len(rise) < 2:
+        return None
+    k = np.round(np.diff(np.sort(np.asarray(rise, float))) / period_us)
+    k = k[(k >= 1) & (k <= MAX_FILLED + 1)]
+    return float(len(k) / k.sum()) if k.sum() else None
+
+
+def logged_pulses(t_mcu_us, t_raw_us, steer_us, steer_t_us, mod: int):
+    """The servo pulses the records carry, one each: (falling-edge times on the unwrapped
+    MCU clock [us], widths [us]), in time order; empty without edge times (protocol v1)."""
+    us = np.asarray(steer_us, float)
+    t_fall = np.asarray(steer_t_us, np.int64)
+    ok = (us > 0) & (t_fall != STEER_T_UNKNOWN)
+    age = (np.asarray(t_raw_us, np.int64) - t_fall) % mod
+    fall = np.asarray(t_mcu_us, np.int64) - age
+    f, first = np.unique(fall[ok], return_index=True)
+    return f, us[ok][first]
+
+
+def _fill_lost_pulses(fall: np.ndarray, cmd: np.ndarray, period: float | None = None):
+    """Pulses no record carries leave a hole in the staircase: the servo did receive them.
+    Whose every sample was lost on the link, or that came between two samples (a receiver
+    faster than the sample rate: each record holds only the latest pulse). A receiver
+    sends at a steady period (``receiver_period_us``), so the missing edges are put back
+    at that period and their commands interpolated between the neighbours (far closer
+    to what the servo got than holding the last one through the hole, which would place
+    every step late)."""
     if len(fall) < 3:
         return fall, cmd
     d = np.diff(fall)
-    period = float(np.median(d))
+    if period is None:
+        period = float(np.median(d))
     if period <= 0:
         return fall, cmd
     n_missing = np.round(d / period).astype(np.int64) - 1
     holes = np.flatnonzero((n_missing >= 1) & (np.abs(d - (n_missing + 1) * period) < 0.25 * period)
-                           & (n_missing <= 10))
+                           & (n_missing <= MAX_FILLED))
     if not len(holes):
         return fall, cmd
     add_t, add_c = [], []

@@ -43,7 +43,8 @@ from stid.errors import StidError, ToolMissing
 
 FIRMWARE_DIR = Path(__file__).resolve().parents[1] / "firmware" / "micropython"
 # main.py stays source (the board boots it by name); config.py is written per flash.
-COMPILED_MODULES = ("codec", "ring", "pulses", "boards", "sampler", "adc_scan", "servo_pio", "servo_pcnt", "app")
+COMPILED_MODULES = ("codec", "ring", "pulses", "boards", "sampler", "adc_scan", "servo_pio", "servo_pcnt", "hall_pcnt",
+                    "app")
 ARCH = {"pico": "armv6m", "esp32": "xtensawin"}
 PLATFORM = {"pico": "rp2", "esp32": "esp32"}  # sys.platform of each board's MicroPython port
 ESCAPE = b"STID-ESCAPE"  # firmware/micropython/app.py ESCAPE

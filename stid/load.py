@@ -388,6 +388,9 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
             if no_exact.any():
                 valid = ~no_exact if valid is None else valid & ~no_exact
             sig["steer"] = _filled(exact, tu)
+            fall, width = convert.logged_pulses(t_us, s["t_us"], s["steer_us"], s["steer_t_us"],
+                                                int(hello.get("mod", 1 << 30)))
+            few = fast_receiver_warning(fall - width, 1e6 / step)
     t = (tu - tu[0]) * 1e-6
     fs = 1e6 / step
     run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig.get("ax"),
@@ -396,9 +399,9 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
                     "sensor_chain": sensor_chain.from_hello(hello, vehicle)},
               valid=valid)
     run.meta["steer_timing"] = "servo pulse edges" if timed else "sample instants"
-    late_edges = scheduled_steer_note(hello)
-    if late_edges:
-        run.meta.setdefault("notes", []).append(late_edges)
+    for late_edges in (scheduled_steer_note(hello), scheduled_hall_note(hello)):
+        if late_edges:
+            run.meta.setdefault("notes", []).append(late_edges)
     if not timed:
         run.meta.setdefault("notes", []).append(
             "steer timed at the sample instants (this log does not carry the servo pulses' edge times, "
@@ -410,6 +413,8 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
             "values interpolated to the sample grid from their measured times")
     if filled:
         run.meta["link_lost"] = int(filled)  # (said once for the whole log: _link_losses)
+    if timed and few:
+        run.warn(few)
     if no_pulse.mean() > 0.01:
         run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): the steer is "
                  "unknown there, and those samples are left out")
@@ -426,6 +431,43 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
                                "wheel_radius": vehicle.wheel_radius, "sensors": vehicle.sensors,
                                "gyro_bias_rad_s": bias}
     return run
+
+
+def scheduled_hall_note(hello: dict) -> str | None:
+    """A note for a log whose hall edges an ESP32 counted and timed with pin callbacks (scheduled
+    there, as the steering's were): firmware 0.3.3 times one hall sensor with the pulse counter
+    (HELLO capture.hall "pcnt"); four sensors need more units than the ESP32 has."""
+    if hello.get("board") != "esp32" or (hello.get("capture") or {}).get("hall", "irq") != "irq":
+        return None
+    return ("hall edges timed by scheduled pin callbacks (ESP32): in a simulation of the port, edges late by up "
+            "to a frame write on 9% of the samples at 500 Hz and the wheel speed off by more than 1% on 11%; "
+            "firmware 0.3.3 with one hall sensor times them with the pulse counter (HELLO capture.hall 'pcnt') "
+            "to ±1 µs")
+
+
+PULSES_LOGGED_MIN = 0.9  # below this share of the receiver's pulses in the records, say so
+
+
+def fast_receiver_warning(rise_us: np.ndarray, fs: float) -> str | None:
+    """A warning when the records carry only part of the receiver's pulses: a record holds the
+    latest pulse at its instant, so a receiver that sends frames faster than the firmware
+    samples (surface receivers: 91-333 Hz) has pulses no record holds. Their commands are
+    interpolated between the recorded ones (convert._fill_lost_pulses); a step between two
+    records is placed where the interpolation puts it, not where it was."""
+    period = convert.receiver_period_us(rise_us)
+    share = convert.pulses_in_log(rise_us, period)
+    if share is None or share >= PULSES_LOGGED_MIN:
+        return None
+    rx_hz = 1e6 / period
+    return (f"the receiver sent a servo pulse every {period / 1e3:.1f} ms ({rx_hz:.0f} Hz) and the firmware "
+            f"sampled at {fs:.0f} Hz: each sample records only the latest pulse, so {100 * share:.0f}% of them are "
+            f"in this log; the others' commands are interpolated between them. Log at {_rate_above(rx_hz)} Hz or "
+            "more (stid flash --rate) to record every pulse")
+
+
+def _rate_above(hz: float) -> int:
+    # the lowest rate that divides 10^6 (the firmware's grid is whole us) at or above hz
+    return next(r for r in (100, 125, 200, 250, 400, 500, 625, 1000, 2000, 2500, 5000) if r >= hz)
 
 
 def scheduled_steer_note(hello: dict) -> str | None:

@@ -242,6 +242,37 @@ def test_steer_sampled_at_the_sample_instant_is_off_by_the_phase():
     assert np.ptp(delays) > 300  # us: a fixed, phase-dependent timing error when phase-locked
 
 
+def test_a_receiver_faster_than_the_sampler_is_rebuilt_without_delay(monkeypatch):
+    """A surface receiver's 333 Hz frames sampled at 100 Hz: each record holds only the latest
+    pulse, so 3 in 10 pulses are logged. Held from one logged pulse to the next, the staircase
+    was ~3.6 ms late (what put a 1:10 car's sigma_f 44% low); with the receiver's period found
+    from the logged pulses' rising edges, the pulses between are put back and their commands
+    interpolated: no delay left, and the loader says what the log lacks."""
+    from stid import convert
+    from stid.load import fast_receiver_warning
+
+    mod = 1 << 30
+    t_s, steer_us, steer_t, veh, mean, h = _staircase_case(3001, fs=100, offset_us=334)
+    fall, width = convert.logged_pulses(t_s, t_s % mod, steer_us, steer_t % mod, mod)
+    period = convert.receiver_period_us(fall - width)
+    assert abs(period - 3001) < 1
+    assert 0.28 < convert.pulses_in_log(fall - width, period) < 0.32
+    ref = np.array([mean(t - h // 2, t + h // 2) for t in t_s])
+    steer, timed = convert.steer_at_servo_times(t_s, t_s % mod, steer_us, steer_t % mod, veh, mod, t_s, h)
+    assert abs(_delay_us(steer, ref, 100.0)) < 200
+    with monkeypatch.context() as m:  # the loader before: the median gap (3 frames) as the period
+        m.setattr(convert, "receiver_period_us", lambda rise: None)
+        held, _ = convert.steer_at_servo_times(t_s, t_s % mod, steer_us, steer_t % mod, veh, mod, t_s, h)
+    assert _delay_us(held, ref, 100.0) > 3000
+    note = fast_receiver_warning(fall - width, 100.0)
+    assert "every 3.0 ms (333 Hz)" in note and "30% of them" in note and "400 Hz" in note
+    # sampled at 500 Hz every pulse is in the log: nothing to say
+    t_s, steer_us, steer_t, veh, mean, h = _staircase_case(3001, fs=500, offset_us=334)
+    fall, width = convert.logged_pulses(t_s, t_s % mod, steer_us, steer_t % mod, mod)
+    assert convert.pulses_in_log(fall - width, convert.receiver_period_us(fall - width)) == 1.0
+    assert fast_receiver_warning(fall - width, 500.0) is None
+
+
 def test_missing_rows_are_gaps_not_data(tmp_path):
     """A CSV from a lossy logger: rows missing in blocks. The fit leaves them out (and the
     prefilter's reach around them), and lands where the complete log lands."""

@@ -162,8 +162,10 @@ class AdcScan:
 
     def skip(self, periods):
         # periods with no sample (a soft timer's lost ticks): their scans are passed by
+        # (periods - 1) * period is < 2^29 (the sampler's lost span), periods * period may not
+        # be: ticks_add takes |delta| < 2^29 only
         self._slot = (self._slot + periods * self.per_period) & (self.scans - 1)
-        self._t = time.ticks_add(self._t, periods * self.period_us)
+        self._t = time.ticks_add(time.ticks_add(self._t, (periods - 1) * self.period_us), self.period_us)
 
     def latch(self, now):
         """Latch the scan of the current period (readers() read it); return its ticks.

@@ -33,13 +33,14 @@ from pulses import HallCounter, ServoPulse
 from ring import SampleRing
 from sampler import Sampler
 
-FW_VERSION = (0, 3, 2)  # 0.3.2: issue 22 (31-bit integers, stale steer, long stops, host stalls, ESP32 servo by PCNT)
+FW_VERSION = (0, 3, 3)  # 0.3.3: ESP32 hall by PCNT, servo polled at both edges, 9 min of lost ticks; 0.3.2: issue 22
 _MASK30 = const(0x3FFFFFFF)
 _STATUS_PERIOD_MS = const(1000)
 _COMPACT_HELLO_PERIOD_MS = const(1000)
 # a receiver's frame is 20 ms (some 11-22 ms): 50 ms rides out one lost pulse and marks the
 # steer stale within 3 frames of the receiver going off (the sampler reads every period)
 _STEER_TIMEOUT_US = const(50000)
+_HALL_PCNT_UNITS = (2, 3)  # the ESP32's PCNT units of a hall sensor (the servo has 0 and 1)
 _WDT_TIMEOUT_MS = const(2000)  # fed before every write, which may block 500 ms; rp2 allows <= 8388 ms
 _ESCAPE_POLL_MS = const(100)
 _RING_SECONDS_X4 = const(5)  # the default ring holds 1.25 s: a 1 s host stall plus margin
@@ -86,7 +87,8 @@ def compact_hello(doc, timer_hard, sim, mp, uid):
     cap = doc.get("capture") or {"adc": "cpu", "servo": "irq"}
     body = struct.pack(codec.HELLO_C_FMT, int(doc["boot_id"], 16), _BOARD_CODES.get(doc["board"], 0),
                        (1 if timer_hard else 0) | (2 if sim else 0) | (4 if cap["adc"] == "dma" else 0)
-                       | (8 if cap["servo"] == "pio" else 0) | (16 if cap["servo"] == "pcnt" else 0),
+                       | (8 if cap["servo"] == "pio" else 0) | (16 if cap["servo"] == "pcnt" else 0)
+                       | (32 if cap.get("hall") == "pcnt" else 0),
                        doc["rate_hz"], doc["batch"],
                        FW_VERSION[0], FW_VERSION[1], FW_VERSION[2], mp[0], mp[1], mp[2],
                        _RESET_CODES.get(doc["reset_cause"], 0), doc["adc"]["bits"],
@@ -141,6 +143,20 @@ def _open_servo(profile):
     return ServoPulse(profile["steer_pin"], _STEER_TIMEOUT_US), "irq"
 
 
+def _open_hall_pcnt(profile, wheel_list):
+    """One ESP32 hall sensor counted and timed by two pulse-counter units against the servo's
+    1 MHz clock (hall_pcnt.py), or None. Set up before the servo starts that clock (see
+    hall_pcnt.py). Four sensors would need 8 units beside the servo's 2 (the ESP32 has 8):
+    they stay on pin interrupts."""
+    if profile.get("servo_clock_pin") is None or len(wheel_list) != 1:
+        return None
+    try:
+        from hall_pcnt import HallCounterPcnt
+        return HallCounterPcnt(wheel_list[0][1], profile["servo_clock_pin"], _HALL_PCNT_UNITS)
+    except (ImportError, AttributeError, OSError, ValueError):  # no esp32.PCNT, or a unit refused
+        return None
+
+
 class App:
     def __init__(self, board="pico", rate_hz=500, batch=10, ring_size=None, out=None,
                  hello_period_s=10, extra_hello=None, wheels=None, wheel_ppr=None, control=None,
@@ -169,8 +185,13 @@ class App:
         period_us = 1000000 // rate_hz
         scan, readers, adc_mode = _open_scan(profile, readers, period_us)
         self.scan = scan
+        hall = _open_hall_pcnt(profile, wheel_list)  # before the servo's clock starts
         self.steer, servo_mode = _open_servo(profile)
-        self.wheels = [HallCounter(pin, profile["hall_debounce_us"]) for _, pin in wheel_list]
+        if hall is not None and servo_mode != "pcnt":  # no clock (its self-test failed): no low time
+            hall.stop()
+            hall = None
+        hall_mode = "irq" if hall is None else "pcnt"
+        self.wheels = [hall] if hall else [HallCounter(pin, profile["hall_debounce_us"]) for _, pin in wheel_list]
         self.wheel = self.wheels[0]
         self.ring = SampleRing(ring_size, self.record_size)
         self.sampler = Sampler(self.ring, readers, self.steer, self.wheels, period_us, scan)
@@ -195,6 +216,8 @@ class App:
         }
         if adc_mode != "cpu" or servo_mode != "irq":  # absent: both by the CPU, as before 0.3.1
             self.hello["capture"] = {"adc": adc_mode, "servo": servo_mode}
+        if hall_mode != "irq":  # (absent: pin interrupts, as before 0.3.3)
+            self.hello["capture"]["hall"] = hall_mode
         if extra_hello:
             self.hello.update(extra_hello)
         self.hello_doc = b""  # built at start(), once the timer mode is known

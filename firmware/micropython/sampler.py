@@ -67,10 +67,14 @@ class Sampler:
             self._t_next = t
         old = time.ticks_diff(self.t_free, self._t_next) - _FREE_MARGIN_US
         if old >= 0 and time.ticks_diff(t, self.t_free) >= 0:  # ticks up to t_free were lost
-            k = old // self.period_us + 1
+            # k whole periods were lost. ticks_add takes |delta| < 2^29 only (extmod/modtime.c:
+            # OverflowError) and k * period reaches old + period, past 2^29 after ~9 min of lost
+            # ticks: step by the whole periods in `old` (< 2^29), then by one period
+            whole = old - old % self.period_us
+            k = whole // self.period_us + 1
             self.index = add30(self.index, k)
             self.missed = add30(self.missed, k)
-            self._t_next = time.ticks_add(self._t_next, k * self.period_us)
+            self._t_next = time.ticks_add(time.ticks_add(self._t_next, whole), self.period_us)
             if self._scan is not None:
                 self._scan.skip(k)
         late = time.ticks_diff(t, self._t_next)

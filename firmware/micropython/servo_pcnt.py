@@ -11,7 +11,7 @@
 # and PCNT unit A counts its rising edges only while the servo line is high (the
 # servo pin is the unit's control input, mode_low = HOLD): the count grows by exactly
 # the pulse's width in us, +-1. Unit B counts the servo's rising edges. The sampler
-# (and a scheduled callback at each rising edge) polls both:
+# (and a scheduled callback at each edge) polls both:
 #   width = the counts gained since the last poll that saw the line low;
 #   fall  = t + (count now - count at t), where t is a poll that saw the line high
 #           (an anchor). A pulse no poll saw high (a write blocked the loop for all of
@@ -98,11 +98,14 @@ class ServoPulsePcnt(ServoPulse):
         self._rise_t = -1  # ticks of the latest anchored pulse's rising edge (-1: none)
         self._p16 = 0  # the receiver's period [us / 16], 0: not known
         self._confirmed = 0  # rises that fell on the period's grid in a row
-        # a poll while the line is high anchors the falling edge; the rising edge's
-        # (scheduled) callback gives most pulses one, whatever the sampler's phase
-        _irq(self.pin, self._rise, Pin.IRQ_RISING)
+        # A poll while the line is high anchors the falling edge; one while it is low closes
+        # the pulse. A scheduled callback at each edge gives most pulses both, whatever the
+        # sampler's phase: a receiver at 333 Hz (3 ms frames, ~1 ms low between pulses)
+        # leaves the sampler's polls (every 10 ms at 100 Hz) no low poll between two pulses,
+        # and counts that span two pulses cannot be split (dropped, `merged`).
+        _irq(self.pin, self._edge, Pin.IRQ_RISING | Pin.IRQ_FALLING)
 
-    def _rise(self, _pin):
+    def _edge(self, _pin):
         self._poll()
 
     def _poll(self):

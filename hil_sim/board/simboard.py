@@ -34,6 +34,11 @@
 #   FIFO, waits 500 ms for room, and returns the count it took, short or 0
 #   (shared/tinyusb/mp_usbd_cdc.c, MICROPY_HW_USB_CDC_TX_TIMEOUT). On a UART the
 #   bridge drops what the host does not read; the write goes on.
+# - A hall sensor (open collector) pulls its line low while the magnet passes: from each
+#   edge for a fraction `hall_dwell` of the interval since that sensor's previous edge
+#   (the magnet's arc over the wheel's turn; 300 us for the first), then high again.
+#   Pin IRQs on the falling edge see only the fall; a pulse counter gated by the line
+#   counts its low time.
 # - Reset cause: rp2 reads WDT_RESET after machine.reset() too; the pico-sdk leaves
 #   watchdog scratch 4 = 0 after machine.reset(), its magic after machine.WDT
 #   (wdt_scratch4, through machine.mem32).
@@ -113,6 +118,11 @@ class Board:
         self.pin_level[self.steer_pin] = 0
         for pin in s.h["hall_pins"]:
             self.pin_level[pin] = 1
+        # each hall line's return to high (a preallocated slot per sensor: no allocation later)
+        self.hall_pins = list(s.h["hall_pins"])
+        self.hall_rise = [_FAR] * len(self.hall_pins)
+        self.hall_prev = [-1] * len(self.hall_pins)  # the sensor's previous edge [us]
+        self.t_hall_rise = _FAR
         self.stalls = s.h.get("stalls", [])
         self.stall_i = 0
         self.row = -1
@@ -120,6 +130,7 @@ class Board:
         opts = dict(_BOARDS[s.board])
         opts.update(extra)
         self.opts = opts
+        self.hall_dwell_x1000 = int(opts.get("hall_dwell", 0.05) * 1000)
         self.micropython = tuple(opts["micropython"])
         self.set_baud(opts["baud"])
         self.tx_buf = opts["tx_buf"]
@@ -265,6 +276,36 @@ class Board:
             t += self.stim.steer.at(self.steer_k)
         return t
 
+    def _hall_fall(self, pin, t):
+        # the line goes low at t; back high after the dwell (never past the next edge's time)
+        self._edge(pin, 0)
+        i = 0
+        while self.hall_pins[i] != pin:
+            i += 1
+        prev = self.hall_prev[i]
+        dwell = 300 if prev < 0 else (t - prev) * self.hall_dwell_x1000 // 1000
+        if dwell < 1:
+            dwell = 1
+        self.hall_prev[i] = t
+        self.hall_rise[i] = t + dwell
+        if t + dwell < self.t_hall_rise:
+            self.t_hall_rise = t + dwell
+
+    def _hall_rises(self, t):
+        # every hall line due back high at t goes high
+        n = len(self.hall_pins)
+        nxt = _FAR
+        i = 0
+        while i < n:
+            r = self.hall_rise[i]
+            if r <= t:
+                self.hall_rise[i] = _FAR
+                self._edge(self.hall_pins[i], 1)
+            elif r < nxt:
+                nxt = r
+            i += 1
+        self.t_hall_rise = nxt
+
     def _next_hall(self):
         if self.hall_i >= self.stim.n_hall:
             return _FAR
@@ -284,11 +325,14 @@ class Board:
             ts = self.t_steer
             th = self.t_hall
             tt = self.timer_due
+            tr = self.t_hall_rise
             t = ts
             if th < t:
                 t = th
             if tt < t:
                 t = tt
+            if tr < t:
+                t = tr
             if t > t_end:
                 break
             self._pace(t)
@@ -299,6 +343,9 @@ class Board:
             if t == tt:
                 self.timer_due = tt + self.timer_period
                 self._timer_fires()
+                continue
+            if t == tr and t != ts and t != th:  # a hall line back high (nothing triggers on it but a counter)
+                self._hall_rises(t)
                 continue
             if t < self.busy_until:  # the edge's IRQ waits for the running ISR
                 self.now = self.busy_until
@@ -316,8 +363,9 @@ class Board:
                 pin = self.stim.hall_pin.at(self.hall_i)
                 self.hall_i += 1
                 self.t_hall = self._next_hall()
-                self._edge(pin, 0)
-                self.pin_level[pin] = 1
+                if self.t_hall_rise <= t:  # a line due back high at this very instant goes first
+                    self._hall_rises(t)
+                self._hall_fall(pin, t)
         if t_end > self.now:
             self._pace(t_end)
             self.now = t_end
@@ -355,6 +403,8 @@ class Board:
         th = self.t_hall
         if th < t:
             t = th
+        if self.t_hall_rise < t:
+            t = self.t_hall_rise
         if self.sched_n:
             t = self.now  # a queued callback is pending: the VM runs it at once
         if t >= _FAR:

@@ -4,7 +4,9 @@
 # instant on the nominal grid. Interrupts and the main loop run with the heap locked.
 #
 # The car is written here from plain rules, not from the project's simulator: servo
-# pulses every 20 ms (widths 1000..1999 us, a fixed pattern), hall edges every 6-11 ms
+# pulses every 20 ms (or `servo_period_us`: surface receivers send 91-333 Hz frames;
+# widths 1000..1999 us, a fixed pattern), hall edges every 6-11 ms, the line low for 5% of
+# the interval after each (the magnet passing),
 # while driving with a contact bounce 40 us after every fifth, none while parked; the
 # receiver is off while parked (no servo pulses at all).
 #
@@ -15,8 +17,16 @@ import scripted_board
 
 MASK30 = 0x3FFFFFFF
 SERVO_PERIOD_US = 20000
-STEER_STALE_LIMIT_US = 3 * SERVO_PERIOD_US  # the promise: stale within 3 servo periods
-_BOUNCE_US = 40
+
+
+def steer_stale_limit_us(servo_period_us):
+    # the promise: stale within 3 servo periods of 20 ms; faster frames keep the firmware's
+    # 50 ms timeout (one lost pulse must not read as the receiver off), so within 60 ms
+    return max(3 * servo_period_us, 60000)
+
+_BOUNCE_US = 40  # a bounce: the line high again for _GLITCH_US, 40 us after the edge
+_GLITCH_US = 5  # (shorter than the ESP32 PCNT's 12.8 us filter; pin IRQs see it)
+_DWELL_X1000 = 50  # the line low for 5% of the interval after each edge
 
 
 class Sink:
@@ -82,8 +92,9 @@ def _main_loop(fw):
 
 
 class Drive:
-    def __init__(self, board, start_ticks=0, pio=True, dma=True, rate=500, counters_near_wrap=True):
-        self.b = scripted_board.new_board(board, start_ticks=start_ticks, pio=pio, dma=dma)
+    def __init__(self, board, start_ticks=0, pio=True, dma=True, pcnt=True, rate=500, counters_near_wrap=True,
+                 servo_period_us=SERVO_PERIOD_US):
+        self.b = scripted_board.new_board(board, start_ticks=start_ticks, pio=pio, dma=dma, pcnt=pcnt)
         import app
 
         self.sink = Sink(4 * rate)
@@ -103,7 +114,8 @@ class Drive:
         self.first_tick = self.b.timer_due
         self.idx0 = self.fw.sampler.index
         # the car's truth
-        self.next_rise = 3000  # servo pulse k rises at 3000 + 20000 k
+        self.servo_period = servo_period_us
+        self.next_rise = 3000  # servo pulse k rises at 3000 + servo_period k
         self.k_pulse = 0
         self.pulse_rise = 0  # abs us of the pulse under way: its rise, width and fall (-1: none)
         self.pulse_w = 0
@@ -111,6 +123,8 @@ class Drive:
         self.next_edge = -1  # abs us of the next hall edge, -1: none (parked)
         self.k_edge = 0
         self.bounce_at = -1
+        self.hall_up_at = -1  # abs us when the hall line goes high again (-1: it is high)
+        self.glitch_end_at = -1  # abs us when a bounce's glitch ends
         self.rx_on = True
         self.driving = False
         self.pulses = []  # (fall, width) not yet passed by a sample
@@ -147,9 +161,9 @@ class Drive:
         if not driving:
             self.next_edge = -1
         if rx_on and not self.rx_on:
-            k = (b.abs_us - 3000) // SERVO_PERIOD_US + 1
+            k = (b.abs_us - 3000) // self.servo_period + 1
             self.k_pulse = k
-            self.next_rise = 3000 + SERVO_PERIOD_US * k
+            self.next_rise = 3000 + self.servo_period * k
             self.stale_seen = True
         if not rx_on and self.rx_on:
             self.next_rise = -1
@@ -175,6 +189,10 @@ class Drive:
                 t, which = self.next_edge, 3
             if 0 <= self.bounce_at < t:
                 t, which = self.bounce_at, 4
+            if 0 <= self.hall_up_at < t:
+                t, which = self.hall_up_at, 5
+            if 0 <= self.glitch_end_at < t:
+                t, which = self.glitch_end_at, 6
             if which == 0:
                 return
             b.advance_to(t)
@@ -185,7 +203,7 @@ class Drive:
                 self.pulse_rise = t
                 b.fire_pin(self.steer_pin, 1)
                 self.k_pulse += 1
-                self.next_rise = 3000 + SERVO_PERIOD_US * self.k_pulse if self.rx_on else -1
+                self.next_rise = 3000 + self.servo_period * self.k_pulse if self.rx_on else -1
             elif which == 2:
                 b.fire_pin(self.steer_pin, 0)
                 b.pio_pulse(self.pulse_rise, t)
@@ -194,18 +212,25 @@ class Drive:
                 self.pulses_fired += 1
             elif which == 3:
                 b.fire_pin(self.hall_pin, 0)
-                b.level[self.hall_pin] = 1
                 self.edges.append(t)
                 self.edges_fired += 1
                 if self.k_edge % 5 == 4:
                     self.bounce_at = t + _BOUNCE_US
                 self.k_edge += 1
-                self.next_edge = t + self._hall_interval() if self.driving else -1
-            else:
-                b.fire_pin(self.hall_pin, 0)
-                b.level[self.hall_pin] = 1
+                gap = self._hall_interval()
+                self.hall_up_at = t + gap * _DWELL_X1000 // 1000
+                self.next_edge = t + gap if self.driving else -1
+            elif which == 4:
+                b.glitch(self.hall_pin, 1, _GLITCH_US)
                 self.bounce_at = -1
+                self.glitch_end_at = t + _GLITCH_US
                 self.bounces_fired += 1
+            elif which == 5:
+                b.fire_pin(self.hall_pin, 1)
+                self.hall_up_at = -1
+            else:
+                b.glitch_end(self.hall_pin, 0)
+                self.glitch_end_at = -1
 
     # -- running ------------------------------------------------------------------------
     def run_for(self, seconds):
@@ -334,5 +359,5 @@ class Drive:
             "pulses": self.pulses_fired,
             "stale_worst_us": self.stale_worst_us,
             "sink_overflow": self.sink.overflow,
-            "capture": (self.scan is not None, type(fw.steer).__name__, self.b.timer_hard),
+            "capture": (self.scan is not None, type(fw.steer).__name__, self.b.timer_hard, type(fw.wheel).__name__),
         }

@@ -67,6 +67,18 @@ class Timer:
         _b().timer_due = -1
 
 
+class PWM:
+    # a 1 MHz clock (servo_pcnt.py's): scripted_board.PcntUnit counts it
+    def __init__(self, pin, freq=None, duty_u16=None, **kw):
+        if freq != 1000000:
+            raise ValueError("scripted board: only a 1 MHz PWM is modelled")
+        self._pin = pin.id
+        _b().clock_pins[self._pin] = True  # driving, its input on (machine_pwm.c reconfigure_pin)
+
+    def deinit(self):
+        _b().clock_pins.pop(self._pin, None)
+
+
 class UART:
     def __init__(self, id, baudrate=None, **kw):
         pass

@@ -20,6 +20,16 @@
 # - The RP2040 ADC round robin into the DMA ring (adc_scan.py): scan k of all four
 #   inputs ends at t0 + (k + 1) * scan_us; the ring slot the sampler is about to
 #   latch is filled, before the interrupt, with the scan number that is in it then.
+# - The ESP32 pulse counter (esp32.PCNT, ports/esp32/esp32_pcnt.c over ESP-IDF's
+#   legacy driver) and a PWM clock (machine.PWM, LEDC): a unit counts the edges of its
+#   pulse pin (INCREMENT / IGNORE), gated by its control pin (mode_low / mode_high:
+#   NORMAL counts, HOLD does not), in a 16-bit register that returns to 0 at `max`.
+#   A 1 MHz PWM has its rising edges half way between two microseconds, so a unit
+#   counting it gains exactly the microseconds its control line was high. As on the
+#   chip, a PCNT set up on a pin the PWM already drives turns its output off
+#   (pcnt_set_pin makes it an input); a PWM started after it keeps the input on.
+#   The counts move when the clock does (advance_to) and at pin edges, outside any
+#   interrupt: reading a unit inside one only returns a small int.
 # What it does not: the interrupt's own duration, a pin IRQ waiting for a running
 # one, the scheduler queue (hil_sim/board/simboard.py models those).
 from array import array
@@ -32,10 +42,13 @@ _PORT_WRAPS_AT_2_30 = utime.ticks_add(MASK30, 1) == 0  # 32-bit ports; the unix 
 
 
 class Board:
-    def __init__(self, name, start_ticks=0, pio=True, dma=True):
+    def __init__(self, name, start_ticks=0, pio=True, dma=True, pcnt=True):
         self.name = name  # "pico" or "esp32"
         self.pio = pio and name == "pico"
         self.dma = dma and name == "pico"
+        self.pcnt = pcnt and name == "esp32"
+        self.units = [PcntUnit(self) for _ in range(8)]  # ESP32: 8 PCNT units
+        self.clock_pins = {}  # pin -> True while a 1 MHz PWM drives it (False: its output off)
         self.abs_us = 0  # board time since power-on [us]: the script's clock (a big int on 31 bits)
         self.start_ticks = start_ticks  # the us counter at power-on (near 2^30: the wrap comes soon)
         self.ticks = start_ticks & MASK30  # what ticks_us() returns
@@ -66,6 +79,9 @@ class Board:
         # rp2, both ticks come from one 64-bit us counter, each kept to 30 bits.
         if abs_us < self.abs_us:
             raise ValueError("the clock only moves forward")
+        if self.pcnt:
+            for u in self.units:
+                u.clock(abs_us - self.abs_us)
         self.abs_us = abs_us
         t64 = self.start_ticks + abs_us
         self.ticks = t64 & MASK30
@@ -74,6 +90,9 @@ class Board:
     # -- interrupts -----------------------------------------------------------
     def fire_pin(self, pin, level):
         # the pin changes level; its IRQ runs if it triggers (hard: heap locked)
+        if self.pcnt:
+            for u in self.units:
+                u.edge(pin, level)
         self.level[pin] = level
         h = self.irq.get(pin)
         if h is None:
@@ -84,6 +103,20 @@ class Board:
             if e is not None:
                 self.hard_edge_errors += 1
                 self.last_error = e
+
+    def glitch(self, pin, level, us):
+        # the pin goes to `level` for `us` microseconds (glitch_end brings it back): pin IRQs
+        # see both edges; a pulse counter whose filter is longer than the glitch counts neither
+        # (a unit gated by the pin does follow it: its own filter is short enough for a 1 MHz
+        # clock)
+        for u in self.units:
+            u.filtering = u.pin == pin and u.filter_us > us
+        self.fire_pin(pin, level)
+
+    def glitch_end(self, pin, level):
+        self.fire_pin(pin, level)
+        for u in self.units:
+            u.filtering = False
 
     def fire_timer(self):
         # one timer tick, heap locked (hard on rp2; scheduled on the ESP32, but the
@@ -130,6 +163,63 @@ class Board:
         for d in self.dmas:
             if d.base:  # the channel that writes the ring: at the scan being filled
                 d.write = d.base + (((done + 1) % scan.scans) << 3)
+
+
+class PcntUnit:
+    """One ESP32 pulse counter unit, channel 0 (what the firmware uses)."""
+
+    IGNORE = 0  # PCNT_COUNT_DIS / INC / DEC, PCNT_MODE_KEEP / REVERSE / DISABLE
+    INCREMENT = 1
+    NORMAL = 0
+    HOLD = 2
+
+    def __init__(self, board):
+        self.board = board
+        self.deinit()
+
+    def deinit(self):
+        self.pin = -1
+        self.ctrl = -1
+        self.rising = self.falling = PcntUnit.IGNORE
+        self.mode_low = self.mode_high = PcntUnit.NORMAL
+        self.h_lim = 0
+        self.reg = 0
+        self.running = False
+        self.filter_us = 0  # the glitch filter (PCNT `filter`, APB cycles of 12.5 ns), in us
+        self.filtering = False  # inside a glitch the filter removes
+
+    def set_pins(self, pin, ctrl):
+        self.pin = pin
+        self.ctrl = ctrl
+        if pin in self.board.clock_pins:  # pcnt_set_pin: GPIO_MODE_INPUT, the PWM's output off
+            self.board.clock_pins[pin] = False
+
+    def _counts(self):
+        # the control line lets it count now (an unused control input: both modes the same here)
+        if self.ctrl < 0:
+            return self.mode_low == PcntUnit.NORMAL
+        high = self.board.level.get(self.ctrl, 0)
+        return (self.mode_high if high else self.mode_low) == PcntUnit.NORMAL
+
+    def _add(self, n):
+        r = self.reg + n
+        if self.h_lim > 0:
+            r %= self.h_lim  # back to 0 each time it reaches max
+        self.reg = r
+
+    def clock(self, dt_us):
+        # the clock on the pulse pin over dt_us: one rising edge per us (1 MHz, edges at +0.5 us)
+        if self.running and dt_us > 0 and self.board.clock_pins.get(self.pin) and self._counts():
+            if self.rising == PcntUnit.INCREMENT:
+                self._add(dt_us)
+            if self.falling == PcntUnit.INCREMENT:
+                self._add(dt_us)
+
+    def edge(self, pin, level):
+        # a pin edge, before the board's level changes
+        if self.running and pin == self.pin and not self.filtering and self._counts():
+            if (self.rising if level else self.falling) == PcntUnit.INCREMENT:
+                self._add(1)
 
 
 def ticks_diff(a, b):

@@ -18,6 +18,16 @@ def ticks_ms():
     return scripted_board.BOARD.ticks_ms
 
 
+def sleep_us(us):
+    # the board's clock moves on (outside any interrupt: servo_pcnt's self-test at start)
+    b = scripted_board.BOARD
+    b.advance_to(b.abs_us + us)
+
+
+def sleep_ms(ms):
+    sleep_us(ms * 1000)
+
+
 if _ut.ticks_add(_MASK30, 1) == 0:
     ticks_add = _ut.ticks_add
     ticks_diff = _ut.ticks_diff
