@@ -34,8 +34,6 @@ CATALOGUE_EFFECTS = ("tyre_relaxation", "actuator_lag", "accel_offset", "body_ro
                      "sensor_bias", "steering_nonlinearity", "locked_diff", "sensor_delay", "steer_offset",
                      "gyro_scale")
 
-WAITS_FOR_WORDS = ("issue 21 point 5: every 'see below' has its section; no stray unit ('at 7.1 m/s s'); "
-                   "speed words count speeds")
 WAITS_FOR_PAIRS = "issue 21 point 3 / 'Pairs before the catalogue lacks it': pairs tried, and said which"
 
 
@@ -408,7 +406,6 @@ def test_stid_diagnose_peel_as_a_command_names_nothing_ruled_out(run):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
 def test_stid_diagnose_words_on_a_run_across_speeds(vehicle):
     """ds1 printed 'delay_s ... at steer 15.1 deg rms s' and 'see 'unexplained' below' with
     no such section."""
@@ -465,7 +462,6 @@ def test_stid_report_as_a_command_tells_the_story_diagnose_tells(tmp_path, vehic
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
 def test_stid_report_words_point_to_what_is_there(tmp_path):
     text = report_text(tmp_path, "ds3.csv")
     check_every_see_below_has_its_section(text)
