@@ -263,10 +263,7 @@ def _cmd_plan(args) -> int:
 
     vehicle = load_vehicle(args.vehicle)
     model = Model(args.model, vehicle)
-    params = model.defaults()
-    for name, spec in vehicle.params.items():
-        if name in params and isinstance(spec, dict) and "init" in spec:
-            params[name] = float(spec["init"])
+    params = model.defaults()  # (the vehicle file's [params] init where it gives one)
     if args.params_from:
         from stid.fit.fitting import fit
 

@@ -72,10 +72,44 @@ def still_samples(vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_
 def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S):
     """Mean yaw rate while standing still (``still_samples``), or None when the run never
     stands still for 0.5 s."""
+    zero = gyro_zero_from_still(r, vx, fs, lookback_s)
+    return None if zero is None else zero["value"]
+
+
+def gyro_zero_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S):
+    """The gyro's zero from the run's stand-still, with what it rests on, or None when the run
+    never stands still for 0.5 s:
+
+    - ``value`` [rad/s], the mean yaw rate while standing still (``still_samples``);
+    - ``stderr`` [rad/s], its standard error (the samples' scatter about their own stand-still's
+      mean, over the number of independent ones: the integrated autocorrelation time counts a
+      filtered gyro's correlated noise once);
+    - ``still_s`` [s], how long the car stood still;
+    - ``drift_seen`` [rad/s], how far apart the zeros of the run's separate stand-stills of 0.5 s
+      or more lie (0 with one): the drift the run itself shows between them.
+
+    An offset left after this zero is the gyro's drift since (stid.analysis.kinematics)."""
+    from stid.stats import tau_int
+
     mask = still_samples(vx, fs, lookback_s)
-    if mask.sum() < 0.5 * fs:
+    n = int(mask.sum())
+    if n < 0.5 * fs:
         return None
-    return float(np.mean(r[mask]))
+    r = np.asarray(r, float)
+    # each stand-still about its own mean: how far apart they lie is drift_seen, not noise
+    scatter = np.concatenate([r[a:b] - np.mean(r[a:b]) for a, b in segments.runs_of(mask, 1)])
+    tau = tau_int(scatter, max(1, min(n // 4, int(fs))))
+    pieces = [float(np.mean(r[a:b])) for a, b in segments.runs_of(mask, max(1, int(0.5 * fs)))]
+    return {"value": float(np.mean(r[mask])), "stderr": float(np.std(scatter) * np.sqrt(tau / n)),
+            "still_s": n / fs, "drift_seen": float(np.ptp(pieces)) if len(pieces) > 1 else 0.0}
+
+
+def set_gyro_zero(run, zero: dict | None, source: str) -> None:
+    """Record the gyro zero taken off ``run.r`` (gyro_zero_from_still; None: none was):
+    ``meta["gyro_bias"]`` its value, ``meta["gyro_zero"]`` the whole record and where it is from,
+    which bounds any gyro offset a fit may name beyond it (stid.analysis.kinematics)."""
+    run.meta["gyro_bias"] = None if zero is None else zero["value"]
+    run.meta["gyro_zero"] = None if zero is None else {**zero, "source": source}
 
 
 STEER_T_UNKNOWN = 0xFFFFFFFF  # a v1 record: the pulse's time was not logged

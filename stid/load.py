@@ -194,8 +194,9 @@ def _csv_gyro_zero(run) -> None:
     (HARDWARE.md: estimate it from every run's stand-still): a CSV's stand-still sets it, as an
     MCAP's and a ROS bag's do. Taking the still mean off an r that was zeroed already (stid
     export) moves it by that mean, the noise's average. Said in a note either way."""
-    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs)
-    run.meta["gyro_bias"] = bias
+    zero = convert.gyro_zero_from_still(run.r, run.vx, run.fs)
+    convert.set_gyro_zero(run, zero, "this run's stand-still")
+    bias = run.meta["gyro_bias"]
     notes = run.meta.setdefault("notes", [])
     if bias is None:
         notes.append("r taken as logged: the run stands still for under 0.5 s, not counting the last "
@@ -289,7 +290,8 @@ def _share_gyro_bias(runs) -> None:
         if donors:
             bias = donors[0].meta["gyro_bias"]
             r.r = r.r - bias
-            r.meta["gyro_bias"] = bias
+            convert.set_gyro_zero(r, donors[0].meta.get("gyro_zero"),
+                                  f"the stand-still of {donors[0].name} (same boot)")
             r.meta["calibration"]["gyro_bias_rad_s"] = bias
             r.meta.setdefault("notes", []).append(
                 f"gyro zero taken from the stand-still of {donors[0].name} (same boot)")
@@ -422,10 +424,11 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     if clip.any():
         run.warn(f"{int(clip.sum())} accelerometer samples at the ADC limit (clipped)")
         run.extra["clipped"] = clip.astype(float) if valid is None else np.interp(tu, t_us, clip.astype(float))
-    bias = convert.gyro_bias_from_still(run.r, run.vx, fs)
+    zero = convert.gyro_zero_from_still(run.r, run.vx, fs)
+    convert.set_gyro_zero(run, zero, "this run's stand-still")
+    bias = run.meta["gyro_bias"]
     if bias is not None:
         run.r = run.r - bias
-    run.meta["gyro_bias"] = bias
     run.meta["calibration"] = {"steer_center_us": vehicle.steer_center_us,
                                "steer_us_per_rad": vehicle.steer_us_per_rad,
                                "wheel_radius": vehicle.wheel_radius, "sensors": vehicle.sensors,

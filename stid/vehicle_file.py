@@ -22,7 +22,7 @@ mount_pitch = 0.0                 # rad, about y
 accel_bandwidth_hz = 50.0         # ADXL335 output filter (5 uF / C; 0.1 uF -> 50 Hz); 0 = none
 gyro_bandwidth_hz = 88.0          # LISY300AL internal low-pass
 
-[params]              # initial values / bounds of model parameters, e.g.
+[params]              # start / bounds of model parameters in every fit (docs/params_in_the_vehicle_file.md)
 Cf = { init = 400.0, min = 20.0, max = 5000.0 }
 
 [csv]                 # a CSV not in the contract: contract column = source column or expression
@@ -37,7 +37,8 @@ imu_axes = ["y", "-x", "z"]
 ``gyro_v_per_dps`` (gyro sensitivity [V per deg/s]) may also be set in ``[sensors]``.
 A sensor bandwidth of 0 means no filter. ``[params]`` names parameters of the base
 models (``Cf``, ``Cr``, ``Iz``; greybox ``Cx``, ``Cy``, ``CA``) or of a registered
-effect. ``[csv]`` keys are contract columns (stid.csv_map), ``[ros]`` keys are listed in
+effect; every fit starts at its ``init`` and searches within its ``min``/``max`` (a fit
+that ends on a bound gives no interval), the closed-form steady-state lines excepted. ``[csv]`` keys are contract columns (stid.csv_map), ``[ros]`` keys are listed in
 stid.ros.topic_map. Any other key or table is an error that names it and the nearest known key.
 """
 
@@ -136,8 +137,10 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _check_params(params: dict, where) -> None:
-    """[params] entries are model parameters: ``NAME = { init = .., min = .., max = .. }``."""
+def _check_params(params: dict, where, vehicle=None) -> None:
+    """[params] entries are model parameters: ``NAME = { init = .., min = .., max = .. }``, each
+    a range that holds its start (with the catalogue's values for what it leaves out) and, for a
+    parameter fitted in log space (positive), no bound at or below 0."""
     if not params:
         return
     # Imported only when a file has [params]: the model catalogue costs most of a second.
@@ -160,6 +163,32 @@ def _check_params(params: dict, where) -> None:
                 raise unknown_key(where, "key", key, list(PARAM_SPEC_KEYS), f"[params] {name}")
             if not _is_number(value):
                 raise InputError(f"{where}: [params] {name}.{key} must be a number, got {value!r}")
+        if vehicle is not None:
+            for q in _definitions(name, BASE_PARAMS, GREYBOX_PARAMS, available_effects()):
+                _check_range(q, vehicle, where)
+
+
+def _definitions(name, base, greybox, effects) -> list:
+    """Every catalogue parameter called ``name`` (the bicycle's Iz and the grey-box's are two)."""
+    found = [q for q in list(base) + list(greybox) if q.name == name]
+    return found + [q for cls in effects.values() for q in cls.params if q.name == name]
+
+
+def _check_range(q, vehicle, where) -> None:
+    lo, hi, init = (q.value(a, vehicle) for a in ("lower", "upper", "init"))
+    mine = vehicle.params[q.name]
+    said = ", ".join(f"{k} = {mine[k]:g}" for k in PARAM_SPEC_KEYS if k in mine)
+    theirs = f"(catalogue: init {q.catalogue('init', vehicle):.4g}, min {q.catalogue('lower', vehicle):.4g}, " \
+             f"max {q.catalogue('upper', vehicle):.4g} {q.unit})"
+    if q.log and lo <= 0:
+        raise InputError(f"{where}: [params] {q.name} ({said}): its min must be above 0, since {q.name} is positive "
+                         f"and fitted in log space {theirs}")
+    if not lo < hi:
+        raise InputError(f"{where}: [params] {q.name} ({said}) leaves no range: min {lo:.4g} is not below max {hi:.4g} "
+                         f"{theirs}; give both, min below max")
+    if not lo <= init <= hi:
+        raise InputError(f"{where}: [params] {q.name} ({said}): the start {init:.4g} lies outside [{lo:.4g}, {hi:.4g}] "
+                         f"{theirs}; give an init inside the range")
 
 
 def load_vehicle(path) -> Vehicle:
@@ -203,7 +232,7 @@ def load_vehicle(path) -> Vehicle:
                          "angle by both (command = offset + gain * angle [rad])")
     if st.get("gain") == 0:
         raise InputError(f"{where}: [steering] gain must not be 0 (command change per radian of road-wheel angle)")
-    _check_params(v.params, where)
+    _check_params(v.params, where, v)
     from stid.csv_map import check_table
     from stid.ros.topic_map import check_table as check_ros
 

@@ -120,3 +120,46 @@ def test_every_see_below_has_its_section():
         assert "noise floor" in text
     text = diagnosis_text([_round({"ay": math.nan, "r": math.nan}, ["x"])])
     assert "no noise floor" in text and "no effect of the catalogue explains" not in text, text
+
+
+def _explanation(effect, stretches, vehicle):
+    """explain() for a candidate fitted with ``effect`` at its catalogue defaults (numbers laid out
+    by hand: what the words claim about speed must not depend on the fit)."""
+    from stid.fit.result import FitResult
+    from stid.models.model import Model
+    from stid.search.candidate import Candidate
+    from stid.search.explain import explain
+
+    model = Model(f"bicycle+{effect}", vehicle)
+    p = model.defaults()
+    names = list(p)
+
+    def result(ns):
+        return FitResult(model=model.name, method="time", names=ns, values=np.array([p[n] for n in ns]),
+                         cov=np.eye(len(ns)) * 1e-12, units={n: model.param(n).unit for n in ns},
+                         owners={n: model.owner(n) for n in ns}, fit={"ay": 80.0, "r": 90.0}, n=10_000)
+
+    base = result(["Cf", "Cr", "Iz"])
+    base.fit = {"ay": 70.0, "r": 85.0}
+    return explain(Candidate(effect, result=result(names)), base, stretches)
+
+
+def test_a_run_held_at_one_speed_is_told_nothing_about_speed(rc_vehicle):
+    """ds3 of the real log (1.19-1.30 m/s) was told 'the response lags more at low speed (148 ms at
+    1.3 m/s)': a trend from one speed. Every catalogue effect's words, on data held at one speed,
+    claim no change with speed; on two speeds the relaxation's trend is said, with both lags."""
+    import re
+
+    from stid.models.effect import available_effects
+
+    one = Stretches([_stretch("a", 1.25), _stretch("b", 1.27, seed=1)])
+    two = Stretches([_stretch("a", 1.25), _stretch("b", 3.0, seed=1)])
+    trend = re.compile(r"(?:more|less) (?:so )?at (?:low|high) speed|(?:grows?|shrinks?|changes?) with speed"
+                       r"|at every speed|across speed|as speed rises")
+    for effect in sorted(available_effects()):
+        words = _explanation(effect, one, rc_vehicle)
+        assert not trend.findall(words), (effect, trend.findall(words), words)
+    words = _explanation("tyre_relaxation", two, rc_vehicle)
+    assert "the response lags more at low speed" in words and "at 1.2 m/s" in words and "at 3.0 m/s" in words, words
+    one_words = _explanation("tyre_relaxation", one, rc_vehicle)
+    assert "one speed only" in one_words and "needs a second speed" in one_words, one_words

@@ -230,6 +230,26 @@ def test_a_user_effect_cannot_take_a_catalogue_name(tmp_path, simdir):
     assert h.returncode == 0 and "cannot list them" in h.stdout and "Traceback" not in h.stderr, h.stderr
 
 
+def test_an_input_effect_says_where_on_the_steering_chain_it_sits():
+    """The servo's lag and trim sit at the servo, the linkage behind them (the model runs the
+    chain in that order: tests/test_steering_chain.py); a place that is not on the chain is
+    refused when the effect registers."""
+    from stid.models.effect import Effect, register_effect
+
+    effects = available_effects()
+    assert effects["actuator_lag"].steer_place == effects["steer_offset"].steer_place == "servo"
+    assert effects["steering_nonlinearity"].steer_place == "linkage"
+
+    class Tyre(Effect):
+        name = "wheel_place_test"
+        stage = "input"
+        steer_place = "wheel"
+
+    with pytest.raises(ValueError, match="steer_place must be one of 'servo', 'linkage'"):
+        register_effect(Tyre)
+    assert "wheel_place_test" not in available_effects()
+
+
 def test_a_broken_user_effect_is_named_with_its_file_before_any_data_work():
     """An effect whose apply fails (a row that does not exist) was a traceback in diagnose and
     'the fit failed numerically ...; check the data for outliers' in fit."""

@@ -34,10 +34,6 @@ CATALOGUE_EFFECTS = ("tyre_relaxation", "actuator_lag", "accel_offset", "body_ro
                      "sensor_bias", "steering_nonlinearity", "locked_diff", "sensor_delay", "steer_offset",
                      "gyro_scale")
 
-WAITS_FOR_BIAS_KINEMATICS = ("issue 21 point 2 / 'steer_offset and gyro_scale': a named sensor_bias must agree "
-                             "with the kinematics the data carry")
-WAITS_FOR_WORDS = ("issue 21 point 5: every 'see below' has its section; no stray unit ('at 7.1 m/s s'); "
-                   "speed words count speeds")
 WAITS_FOR_PAIRS = "issue 21 point 3 / 'Pairs before the catalogue lacks it': pairs tried, and said which"
 
 
@@ -372,16 +368,16 @@ def test_diagnosis_of_a_real_run_names_only_catalogue_effects_in_true_speed_word
     check_speed_words(text, data("ds3.csv"))
 
 
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_BIAS_KINEMATICS)
 def test_diagnosis_names_nothing_the_kinematics_rule_out(vehicle):
     """On ds3 the peel named sensor_bias with a gyro offset of -0.040 [-0.063, -0.018] rad/s;
     the lidar heading allows -0.006 +- 0.002 and the car at rest reads -0.0075. With the
-    stand-still's zero (-0.0060) taken off at load, it names -0.034 beyond it: -0.040 in all."""
+    stand-still's zero (-0.0060) taken off at load, it named -0.034 beyond it: -0.040 in all.
+    A gyro zeroed at a stand-still of the same run is now held to its drift since
+    (stid.analysis.kinematics, rule 3), and sensor_bias is not named."""
     doc, _ = diagnosis_of("ds3.csv", vehicle)
     check_nothing_named_that_the_kinematics_rule_out(doc, data("ds3.csv"), gyro_zero_taken("ds3.csv"))
 
 
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
 def test_diagnosis_words_point_to_what_is_there(vehicle):
     _, text = diagnosis_of("ds3.csv", vehicle)
     check_every_see_below_has_its_section(text)
@@ -410,7 +406,6 @@ def test_stid_diagnose_peel_as_a_command_names_nothing_ruled_out(run):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
 def test_stid_diagnose_words_on_a_run_across_speeds(vehicle):
     """ds1 printed 'delay_s ... at steer 15.1 deg rms s' and 'see 'unexplained' below' with
     no such section."""
@@ -467,7 +462,6 @@ def test_stid_report_as_a_command_tells_the_story_diagnose_tells(tmp_path, vehic
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_WORDS)
 def test_stid_report_words_point_to_what_is_there(tmp_path):
     text = report_text(tmp_path, "ds3.csv")
     check_every_see_below_has_its_section(text)

@@ -18,6 +18,15 @@ independently of the dynamics fit:
    that cancel so at the one speed driven are possible but a coincidence; the fix is a
    second speed, which separates them, see SteerOffset.confused_with.)
 
+At one speed the kinematics give one equation for two offsets: any gyro offset is hidden by
+an accelerometer offset of vx times it. A stand-still in the same run separates them: the
+loader takes the gyro's zero from it (stid.convert.gyro_zero_from_still), so
+
+3. a gyro offset named beyond that zero is at most the gyro's drift since it was taken
+   (``GYRO_ZERO_DRIFT``, or more where the run's own stand-stills disagree by more), plus
+   the zero's own uncertainty. A larger one belongs to something else (a trim, an
+   accelerometer's tilt, the dynamics), not to the gyro.
+
 Each stretch is cut into windows of ``WINDOW_S``: each window's mean of ay - vx r holds
 its own vy change over its own length, so their scatter measures that term (and the
 noise) from the data, and a run whose speed varies gives one equation per window at
@@ -38,6 +47,14 @@ Z = 3.0  # the data's mean is held to within 3 standard errors (several speeds, 
 # consistency test allows it; the "no offset" test does not need it (it only errs toward
 # allowing a bias).
 SCALE_TOL = 0.1
+# How far a MEMS gyro's zero can move within one run after it was taken at a stand-still of that
+# run: its temperature coefficient times the run's temperature change. Consumer MEMS gyros state
+# 0.01-0.08 deg/s per K (the BMI160 of the VESC 6 the upper end of that; its datasheet and the
+# LISY300AL's could not be read here: unverified), and a board within one run of minutes warms
+# by well under 10 K (a motor controller's IMU sits on the power stage: the high end). 0.08 deg/s/K
+# times 10 K. Measured on the real log (tests/fixtures/real): the stand-stills at the start and the
+# end of ds3, two minutes apart, differ by 0.02 deg/s, ds4's by 0.05 deg/s.
+GYRO_ZERO_DRIFT = float(np.radians(0.8))  # rad/s
 
 
 @dataclass
@@ -120,7 +137,27 @@ def sensor_bias_check(result, stretches) -> str:
                 f"+-{np.degrees(g.tol(False) / g.speed):.2f} at {g.speed:.1f} m/s) while the fit needs a gyro "
                 f"offset of {_dps(b_r)}, hidden only by an accelerometer offset of vx times it: that is what a "
                 "turn makes, and a steering offset (steer_offset) explains it with one parameter")
+    zeroed = _zero_allowance(stretches)
+    if zeroed is not None and abs(b_r) > zeroed[0]:  # 3. beyond the drift of a zero taken in the run
+        allowed, zero = zeroed
+        return (f"the gyro was zeroed at {zero['source']} ({_dps(zero['value'])} +-{np.degrees(zero['stderr']):.2f} "
+                f"over {zero['still_s']:.1f} s): an offset left after it is at most its drift since, "
+                f"{np.degrees(allowed):.2f} deg/s, while the fit needs {_dps(b_r)} beyond the zero: that offset "
+                "is not the gyro's (the kinematics at one speed take a gyro offset for an accelerometer's; the "
+                "stand-still does not)")
     return ""
+
+
+def _zero_allowance(stretches):
+    """(largest gyro offset beyond the zero the drift allows [rad/s], the zero) when every
+    stretch's gyro was zeroed at a stand-still of its own run, else None: the loosest of the
+    stretches' (the drift, the zero's 3 standard errors, the spread of the run's own stand-stills)."""
+    zeros = [getattr(s, "gyro_zero", None) for s in stretches]
+    if not zeros or any(z is None for z in zeros):
+        return None
+    allowed = [GYRO_ZERO_DRIFT + Z * z["stderr"] + z.get("drift_seen", 0.0) for z in zeros]
+    k = int(np.argmax(allowed))
+    return allowed[k], zeros[k]
 
 
 CHECKS = {"sensor_bias": sensor_bias_check}

@@ -42,6 +42,13 @@ def varies(stretches) -> bool:
     return hi > SPEED_STEP * lo
 
 
+def spans_speeds(stretches) -> bool:
+    """Whether the data can say anything about a change with speed: two separate speeds held, or
+    a speed that varies within the runs. A run held at one speed shows what a model predicts
+    there, not how anything changes with speed."""
+    return len(held_speeds(stretches)) > 1 or varies(stretches)
+
+
 def stretch_speeds(stretches) -> str:
     """Each stretch's speed, a range where it varies within it: '3.1, 7.2 m/s', '1.2-4.4 m/s'."""
     labels = []

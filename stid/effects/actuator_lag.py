@@ -6,6 +6,7 @@ from stid.models.params import Param
 class ActuatorLag(Effect):
     name = "actuator_lag"
     stage = "input"
+    steer_place = "servo"  # the linkage (steering_nonlinearity, a trim's horn) takes the servo's output
     params = (Param("tau_steer", "s", "steering servo time constant", 0.05, 1e-6, 0.5, zero=1e-7),)
     physics = ("The steering servo follows its command as a first-order lag: the road-wheel angle "
                "obeys delta' = (delta_cmd - delta)/tau_steer. RC servos take 0.05-0.16 s; the logger "

@@ -42,7 +42,9 @@ class SensorDelay(Effect):
     (the gain is exact) and its phase is within 0.04 deg of the delay's for
     omega d <= 3 (0.4 deg at 4): for a 50 ms delay, exact to 10 Hz, beyond the
     band a random-steer run excites. Delaying every sensor is, for a linear model,
-    the same as delaying the steer, so the block sits in front of the model's input.
+    the same as delaying the steer, so the block sits in front of the model's input;
+    a delay also commutes with a static steer map (a linkage), so it stays in the
+    linear model behind any map (``steer_place`` "linkage", the default).
     Only sensors late relative to the steer (delay_s > 0) are modelled: a steer
     logged after the sensors would be a non-causal block.
     """

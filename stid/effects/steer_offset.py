@@ -23,6 +23,9 @@ class SteerOffset(Effect):
 
     name = "steer_offset"
     stage = "input"
+    # A trim is the servo's (its centre pulse, or a horn a spline off): the linkage turns the trimmed
+    # angle. Before or after the servo's lag is the same for a constant (the lag's gain at rest is 1).
+    steer_place = "servo"
     params = (Param("delta0", "rad", "road-wheel angle at zero steering command (servo trim), "
                     "positive to the left", 0.0, -0.15, 0.15, log=False, zero=0.0, multistart=False),)
     physics = ("The servo's centre does not put the road wheels straight: a horn a spline off, tie rods of "

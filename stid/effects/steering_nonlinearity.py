@@ -20,6 +20,7 @@ class SteeringNonlinearity(Effect):
 
     name = "steering_nonlinearity"
     stage = "input"
+    steer_place = "linkage"  # it turns the servo's output (after its lag and trim), not the command
     params = (Param("k3", "1/rad^2", "cubic steering-linkage coefficient: the road-wheel angle is "
                     "delta_cmd (1 + k3 delta_cmd^2); k3 < 0 degressive, > 0 progressive",
                     0.0, -5.0, 5.0, log=False, zero=0.0),)

@@ -58,6 +58,9 @@ class Stretch:
     valid: np.ndarray | None = None  # False where an output sample is not a measurement
     sensors: dict | None = None  # the sensor chain the outputs went through (stid.sensor_chain)
     measured: dict | None = None  # other logged channels on this grid (ax, beta): what a residual may follow
+    # the gyro zero taken off r at load, from a stand-still of the same run (stid.convert.gyro_zero_from_still):
+    # a gyro offset beyond it is at most the gyro's drift since (stid.analysis.kinematics); None: no zero taken
+    gyro_zero: dict | None = None
 
     @property
     def dt(self) -> float:
@@ -182,7 +185,8 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
                                vx=float(np.median(run.vx[a * q:b * q])),
                                valid=None if valid.all() else valid,
                                sensors=run.meta.get("sensor_chain"),
-                               measured={n: sig[n][sl] for n in other} or None))
+                               measured={n: sig[n][sl] for n in other} or None,
+                               gyro_zero=run.meta.get("gyro_zero")))
     if not out:
         if constant_speed:
             raise InputError(f"the {method or 'frequency-response'} method needs stretches at one constant "

@@ -70,7 +70,12 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
         else:
             init = nested.effect_starts(model, contained.all_params())["effects at default"]
     result = _fit_model(model, runs, method, dynamic, intervals, stretches, init, multistart)
-    if contained is not None and in_time and nested.worse_than(result, contained):
+    kept_off = nested.bounds_keep_off(model)
+    if kept_off:
+        result.note(f"the vehicle file's [params] range keeps {', '.join(kept_off)} off the value where "
+                    f"{'its effect vanishes' if len(kept_off) == 1 else 'their effects vanish'}: {model.name} does "
+                    f"not contain {nested.BASE} and may fit worse than it")
+    elif contained is not None and in_time and nested.worse_than(result, contained):
         zero = nested.effect_starts(model, contained.all_params())["effects at zero"]
         again = _fit_model(model, runs, method, dynamic, intervals, stretches, zero, False)
         result = again if again.loglik > result.loglik else result

@@ -13,7 +13,9 @@ simulation each).
 After the fit, the two are compared on the same samples: a model that ends
 below the one it contains is refitted from the contained model's solution with
 the effect at its zero, and if it still ends below, it says so and is not
-called converged.
+called converged. A vehicle file whose [params] range keeps an effect off its
+zero (``bounds_keep_off``) makes a model that no longer contains the bicycle:
+it is not held to the bicycle's fit, and says why.
 """
 
 from __future__ import annotations
@@ -37,9 +39,22 @@ def effect_starts(model, inner: dict) -> dict:
     for e in model.effects:
         for q in e.params:
             if q.zero is not None:
-                lo, hi = model.bounds(q.name)
-                at_zero[q.name] = min(max(q.zero, lo * 1.5 if q.log else lo), hi)
+                at_zero[q.name] = _reach(q, *model.bounds(q.name))
     return {"effects at default": at_default, "effects at zero": at_zero, "catalogue defaults": default}
+
+
+def _reach(q, lo, hi) -> float:
+    """How near its off value a parameter can sit within [lo, hi] (a log parameter above 0)."""
+    return min(max(q.zero, lo * 1.5 if q.log else lo), hi)
+
+
+def bounds_keep_off(model) -> list:
+    """The effect parameters whose vehicle-file [params] range keeps them further from their off
+    value than the catalogue's range does ("a servo lag of at least 30 ms"): with such a bound
+    ``bicycle+X`` no longer contains the bicycle, and may fit worse than it."""
+    v = model.vehicle
+    return [q.name for e in model.effects for q in e.params if q.zero is not None
+            and _reach(q, *model.bounds(q.name)) != _reach(q, q.catalogue("lower", v), q.catalogue("upper", v))]
 
 
 def start_cost(model, p: dict, stretches, sigma, discard_s: float = 0.5) -> float:

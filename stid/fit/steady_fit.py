@@ -49,6 +49,10 @@ def fit_steady(model, pts: SteadyPoints) -> FitResult:
     if model.effects:
         warnings.append("the steady-state fit uses the plain bicycle relations; effects in the model "
                         f"({', '.join(e.name for e in model.effects)}) are ignored")
+    given = sorted(set(getattr(v, "params", None) or {}) & set(model.param_names))
+    if given:
+        warnings.append(f"the steady-state lines are solved in closed form: the vehicle file's [params] "
+                        f"({', '.join(given)}) set no start and no bound on what they give")
     fit = {"steer": fit_percent(pts.steer, steer_hat)}
     extra = {"points": pts, "eta": eta, "delta0": d0}
     if pts.beta is None:

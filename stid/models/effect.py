@@ -4,9 +4,14 @@ An effect changes the single-track model at one of four places, in this order:
 
 - ``"input"``: the steering path before the tyres. ``apply`` returns the system
   with a linear block in front of the ``delta`` input (servo lag, a Pade delay);
-  a static nonlinear map of the logged steer (linkage geometry) implements
-  ``steer_map`` instead, which the model applies to the sampled steer signal
-  before simulating (exact: no iteration, the rest of the model stays linear).
+  a static nonlinear map (linkage geometry) implements ``steer_map`` instead,
+  which the model applies to the sampled steer signal (exact: no iteration, the
+  rest of the model stays linear). ``steer_place`` says where on the car's
+  steering chain the effect sits: ``"servo"`` (the servo's dynamics and its trim)
+  or ``"linkage"`` (horn, tie rods, steering arms: driven by the servo's output).
+  A map at ``"linkage"`` takes the output of the linear blocks at ``"servo"``, as
+  on the car: the model runs those blocks on the sampled steer first
+  (``stid.models.model.Model.simulate``).
 - ``"tyre"``: how side forces build up. ``tyre_options`` returns options for the
   base model (relaxation lengths); a nonlinear tyre effect implements
   ``force_correction`` (force minus its linear part, from the slip angles).
@@ -107,6 +112,12 @@ class Effect:
     signature: ClassVar[str] = ""
     # Candidates whose residual signature this effect shares, and the run that tells them apart.
     confused_with: ClassVar[dict] = {}
+    # Stage "input": the effect's place on the steering chain, from the logged command to the road
+    # wheels. "servo": the servo's own dynamics and its trim, which act on the command. "linkage":
+    # what the servo's output drives (horn, tie rods, arms); a steer map here takes the servo's
+    # output, not the command. A linear block at "linkage" (or a pure delay, which commutes with a
+    # static map) stays in the linear model, behind every map.
+    steer_place: ClassVar[str] = "linkage"
 
     def apply(self, sys: LinSys, p: dict, ctx: Context) -> LinSys:
         return sys
@@ -145,6 +156,7 @@ class Effect:
 
 
 STAGES = ("input", "tyre", "body", "output")  # the order in which a model applies them
+STEER_PLACES = ("servo", "linkage")  # an input effect's place on the steering chain, command first
 _REGISTRY: dict[str, type[Effect]] = {}
 _ENTRY_POINTS_LOADED = False
 
@@ -155,6 +167,8 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
         raise ValueError(f"effect {cls.__name__} needs a name that is a Python identifier")
     if cls.stage not in STAGES:
         raise ValueError(f"effect {cls.name}: stage must be one of {', '.join(map(repr, STAGES))}")
+    if cls.steer_place not in STEER_PLACES:
+        raise ValueError(f"effect {cls.name}: steer_place must be one of {', '.join(map(repr, STEER_PLACES))}")
     there = _REGISTRY.get(cls.name)
     if there is not None and (there.__module__, there.__qualname__) != (cls.__module__, cls.__qualname__):
         # (the same class loaded again, a module reloaded, is not a clash)

@@ -9,7 +9,7 @@ import numpy as np
 from stid.errors import InputError
 from stid.models.bicycle import BASE_PARAMS, bicycle
 from stid.models.effect import Context, get_effect
-from stid.models.linsys import foh_input
+from stid.models.linsys import LinSys, foh_input
 from stid.models.params import Param
 
 BASES = ("bicycle",)  # "greybox" (study 2) is fitted by stid.fit.greybox_fit
@@ -79,6 +79,16 @@ class Model:
                 seen[p.name] = e.name
                 self.params.append(p)
         self._ordered = sorted(self.effects, key=lambda e: _STAGE_ORDER[e.stage])
+        # The steering chain as on the car: command -> servo (its lag, its trim) -> linkage -> wheels.
+        # Maps at the servo's place act on the command (a trim: a constant passes a unit-gain lag
+        # unchanged); a linkage's map takes the servo's output, so where the model has one, the
+        # servo's linear blocks are run on the sampled steer before it (Model.simulate) and left out
+        # of the linear model the rest is simulated with (build(..., servo_apart=True)).
+        maps = [e for e in self._ordered if e.maps_steer]
+        self._servo_maps = [e for e in maps if e.steer_place == "servo"]
+        self._linkage_maps = [e for e in maps if e.steer_place == "linkage"]
+        self._servo_blocks = [e for e in self._ordered if e.stage == "input" and not e.maps_steer
+                              and e.steer_place == "servo"] if self._linkage_maps else []
         # the catalogue's effects keep the single track's speed law (tests/test_effects_contract.py):
         # the LPV simulator need not check it on every parameter set; a user's effect is checked
         self._law_known = all(type(e).__module__.startswith("stid.effects.") for e in self.effects)
@@ -159,10 +169,13 @@ class Model:
     def nonlinear(self) -> bool:
         return any(e.nonlinear for e in self.effects)
 
-    def build(self, p: dict, vx: float, sensors: dict | None = None):
+    def build(self, p: dict, vx: float, sensors: dict | None = None, servo_apart: bool = False):
         """The linear(ised) state-space system at speed vx, its ay and r outputs passed
         through the sensor chain ``sensors`` ({"ay": Hz, "r": Hz}, 0 = no filter; default
-        the model's own)."""
+        the model's own). ``servo_apart``: without the servo's linear blocks, for a steer
+        that has been through them and the linkage already (Model.simulate). Linearised at
+        straight running, where a linkage's map has slope 1, the order of the two does not
+        matter: the frequency response and the planner take the whole chain from here."""
         ctx = self.context(vx)
         opts = {}
         for e in self._ordered:
@@ -171,7 +184,7 @@ class Model:
         loads = [e.body_loads(p, ctx) for e in self._ordered if e.stage == "body"]
         sys = bicycle(p, ctx, loads=loads, **opts)
         for e in self._ordered:
-            if e.stage in ("input", "output"):
+            if e.stage in ("input", "output") and not (servo_apart and e in self._servo_blocks):
                 sys = e.apply(sys, p, ctx)
         for out in MEASURED:
             f = float((self.sensor_bandwidth if sensors is None else sensors).get(out, 0.0) or 0.0)
@@ -183,25 +196,27 @@ class Model:
         """Responses of (ay, r) to steer at f_hz, linearised at straight running: (2, n_f)."""
         return self.build(p, vx, sensors).select(list(MEASURED)).freqresp(f_hz)
 
-    def simulator(self, p: dict, vx, dt: float, outputs, inputs, sensors: dict | None = None):
+    def simulator(self, p: dict, vx, dt: float, outputs, inputs, sensors: dict | None = None,
+                  servo_apart: bool = False):
         """``sim(u) -> y`` for inputs u (n_t, len(inputs)) sampled at dt.
 
         ``vx`` is one speed [m/s] (a linear time-invariant system, filtered by scipy) or
         the measured speed at every sample (a linear parameter-varying system,
-        ``stid.models.lpv``): a run need not hold its speed.
+        ``stid.models.lpv``): a run need not hold its speed. ``servo_apart`` as in build.
         """
         v = np.asarray(vx, float)
         if v.ndim == 0 or (len(v) and np.ptp(v) == 0.0):
             v0 = float(v) if v.ndim == 0 else float(v[0])
-            return self.build(p, v0, sensors).simulator(dt, list(outputs), list(inputs))
+            return self.build(p, v0, sensors, servo_apart).simulator(dt, list(outputs), list(inputs))
         from stid.models.lpv import LpvSimulator, SpeedLaw, system_parts
 
         def build(s):
-            return self.build(p, s, sensors)
+            return self.build(p, s, sensors, servo_apart)
 
         # one evaluation simulates the same parameters on every stretch: the speed law
         # (three builds and a check) is found once for all of them
-        key = (tuple(sorted(p.items())), tuple(sorted((sensors or {}).items())), tuple(outputs), tuple(inputs))
+        key = (tuple(sorted(p.items())), tuple(sorted((sensors or {}).items())), tuple(outputs), tuple(inputs),
+               servo_apart)
         law = self._laws.get(key)
         if law is None:
             law = SpeedLaw(system_parts(build, outputs, inputs), check=not self._law_known)
@@ -210,11 +225,33 @@ class Model:
             self._laws[key] = law
         return LpvSimulator(build, v, dt, outputs, inputs, law=law)
 
+    def _servo_output(self, p: dict, steer: np.ndarray, dt: float, v: np.ndarray) -> np.ndarray:
+        """The servo's output for the logged steer: the linear blocks at the servo's place on
+        the steering chain (its lag) run on the sampled command, for the linkage to take. A lag
+        of a sampled band-limited signal is exact, and costs one state's recursion."""
+
+        def build(s):
+            sys = LinSys(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.ones((1, 1)), [], ["delta"],
+                         ["delta"])
+            for e in self._servo_blocks:
+                sys = e.apply(sys, p, self.context(s))
+            return sys
+
+        if v.ndim == 0 or (len(v) and np.ptp(v) == 0.0):
+            sim = build(float(v) if v.ndim == 0 else float(v[0])).simulator(dt, ["delta"], ["delta"])
+        else:
+            from stid.models.lpv import LpvSimulator
+
+            sim = LpvSimulator(build, v, dt, ["delta"], ["delta"])
+        return sim(foh_input(steer), u_out=steer)[:, 0]
+
     def simulate(self, p: dict, steer: np.ndarray, dt: float, vx, outputs=MEASURED,
                  max_iter: int = MAX_ITER, tol: float = 1e-9, sensors: dict | None = None) -> np.ndarray:
         """Measured outputs for a steer history (n_t,): (n_t, len(outputs)).
 
-        ``vx`` is a constant speed or the speed at every sample [m/s]. Linear models
+        ``vx`` is a constant speed or the speed at every sample [m/s]. The steer goes
+        through the steering chain as on the car: the servo (its trim, its lag), then the
+        linkage's map, then the rest of the model. Linear models
         are one vectorised filter pass (constant speed) or one compiled time-varying
         recursion (varying speed). With a nonlinear tyre effect the
         whole trajectory is iterated (waveform relaxation): simulate, compute the force
@@ -226,25 +263,31 @@ class Model:
         steers the optimiser away.
         """
         v = np.asarray(vx, float)
-        maps = [e for e in self._ordered if e.maps_steer]
         # the context at the run's median speed is for the steer maps and the tyre forces only:
         # a linear model without maps never needs it (the median costs as much as the build)
+        maps = self._servo_maps + self._linkage_maps
         ctx = self.context(float(np.median(v)) if v.ndim else float(v)) if maps or self.nonlinear else None
-        for e in maps:  # static steer maps (linkage geometry): exact, on the sampled signal
-            steer = e.steer_map(np.asarray(steer, float), p, ctx)
         steer = np.asarray(steer, float)
+        # static steer maps: exact, on the sampled signal, in the steering chain's order
+        for e in self._servo_maps:
+            steer = np.asarray(e.steer_map(steer, p, ctx), float)
+        apart = bool(self._servo_blocks)
+        if apart:
+            steer = self._servo_output(p, steer, dt, v)
+        for e in self._linkage_maps:
+            steer = np.asarray(e.steer_map(steer, p, ctx), float)
         # the simulators hold the input first-order: the states are driven by samples whose
         # chords carry the band-limited signal (linsys.foh_input); an output that feeds the
         # steer straight through (no sensor filter) takes the sample itself
         held = foh_input(steer)
         if not self.nonlinear:
-            sim = self.simulator(p, vx, dt, list(outputs), ["delta"], sensors)
+            sim = self.simulator(p, vx, dt, list(outputs), ["delta"], sensors, apart)
             return sim(held, u_out=steer)
         outs = list(outputs)
         n = len(steer)
         # the steer's part is fixed; each pass only needs the slip angles' response
         # to the force correction
-        sim = self.simulator(p, vx, dt, outs + ["alpha_f", "alpha_r"], ["delta", "dFf", "dFr"], sensors)
+        sim = self.simulator(p, vx, dt, outs + ["alpha_f", "alpha_r"], ["delta", "dFf", "dFr"], sensors, apart)
         zeros = np.zeros(n)
         base = sim(np.column_stack([held, zeros, zeros]), u_out=np.column_stack([steer, zeros, zeros]))
         no = len(outs)

@@ -27,8 +27,22 @@ class Param:
     multistart: bool = True  # also try 0.3x and 3x the initial value (non-convex costs)
 
     def value(self, attr, vehicle):
+        """``init``, ``lower`` or ``upper`` for ``vehicle``: its file's [params] entry
+        (``init``, ``min``, ``max``) where it gives one, else the catalogue's (``catalogue``).
+        Every fit, start and bound reads it here, so the vehicle file reaches them all."""
+        given = (getattr(vehicle, "params", None) or {}).get(self.name) or {}
+        key = VEHICLE_FILE_KEYS[attr]
+        if key in given:
+            return float(given[key])
+        return self.catalogue(attr, vehicle)
+
+    def catalogue(self, attr, vehicle):
+        """``init``, ``lower`` or ``upper`` as the model's catalogue has it (scaled to the vehicle)."""
         v = getattr(self, attr)
         return float(v(vehicle) if callable(v) else v)
+
+
+VEHICLE_FILE_KEYS = {"init": "init", "lower": "min", "upper": "max"}  # Param attribute -> [params] key
 
 
 def unit_suffix(unit: str) -> str:

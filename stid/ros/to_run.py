@@ -339,8 +339,9 @@ def _grid_note(parts, times, rate, grid, choice) -> str:
 
 def _gyro_zero(run) -> None:
     # the odometry's speed comes from the motor (ERPM): no hall pulses to wait for
-    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs, lookback_s=0.0)
-    run.meta["gyro_bias"] = bias
+    zero = convert.gyro_zero_from_still(run.r, run.vx, run.fs, lookback_s=0.0)
+    convert.set_gyro_zero(run, zero, "this run's stand-still")
+    bias = run.meta["gyro_bias"]
     if bias is None:
         run.warn("the run never stands still: the gyro's zero is taken as the IMU gives it (start runs with ~2 s "
                  "standing still)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from stid.analysis.speeds import at_speeds, held_speeds, speed_range, varies
+from stid.analysis.speeds import at_speeds, held_speeds, spans_speeds, speed_range, varies
 from stid.models.effect import available_effects
 from stid.models.params import unit_suffix
 from stid.search.candidate import OUTS, Candidate
@@ -28,7 +28,10 @@ def explain(c: Candidate, base, stretches, res=None, adding: str = "Adding it") 
                 f"{at}: steering servo lag, tau = {1000 * p['tau_steer']:.0f} ms")
     elif c.effect == "tyre_relaxation":
         lags = ", ".join(f"{1000 * p['sigma_f'] / v:.0f} ms at {v:.1f} m/s" for v in speeds)
-        lead = (f"the response lags more at low speed ({lags} at the front axle): tyre relaxation, "
+        trend = ("the response lags more at low speed" if spans_speeds(stretches) else
+                 "the response lags (one speed only: whether the lag shrinks as the speed rises, as a relaxation's "
+                 "sigma/vx does and a servo's does not, needs a second speed)")
+        lead = (f"{trend} ({lags} at the front axle): tyre relaxation, "
                 f"sigma_f = {p['sigma_f']:.3f} m, sigma_r = {p['sigma_r']:.3f} m")
     elif c.effect == "accel_offset":
         lead = (f"only the ay residual has structure, and it follows the yaw acceleration: the accelerometer "
@@ -47,9 +50,16 @@ def explain(c: Candidate, base, stretches, res=None, adding: str = "Adding it") 
     else:
         own = {n: v for n, v in p.items() if res.owners.get(n) == c.effect}
         ps = ", ".join(f"{n} = {v:.4g}{unit_suffix(res.units.get(n, ''))}" for n, v in own.items())
-        lead = f"{cls.signature}: {c.effect} ({ps})" if cls.signature else f"{c.effect} ({ps})"
+        shows = cls.signature if spans_speeds(stretches) else _without_speed_claims(cls.signature)
+        lead = f"{shows}: {c.effect} ({ps}, {at})" if shows else f"{c.effect} ({ps}, {at})"
     text = f"{lead}. {adding}: {gain}."
     if c.separable_from:
         other, advice = next(iter(c.separable_from.items()))
         text += f" Cannot be told apart from {other} on this data: {advice}."
     return text
+
+
+def _without_speed_claims(signature: str) -> str:
+    """An effect's signature less its clauses (``;``-separated) about speed: on data that hold one
+    speed the explanation says what this data show, and they show nothing of a change with speed."""
+    return "; ".join(part.strip() for part in signature.split(";") if "speed" not in part)
