@@ -192,10 +192,12 @@ def _check_units(path, cols):
 
 # -- MCAP -----------------------------------------------------------------------
 
-def load_mcap(path, vehicle: Vehicle | None = None) -> list[Run]:
+def load_mcap(path, vehicle: Vehicle | None = None, log=None) -> list[Run]:
+    """The runs of a stid-log file; ``log``: its ``read_log`` when the caller has read it
+    already (stid live reads the events and statistics too)."""
     vehicle = vehicle or default_vehicle()
     try:
-        log = read_log(path)
+        log = log if log is not None else read_log(path)
     except HostError as e:
         raise InputError(str(e)) from None
     s = log.samples

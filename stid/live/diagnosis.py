@@ -1,0 +1,100 @@
+"""The diagnosis's first answer, found in the background.
+
+``stid diagnose RUN --json`` (the command, through its documented JSON) runs as a
+process of its own at the lowest priority on the file as it is then, whenever the data
+have grown enough since the last try; the live view shows its verdict meanwhile. A
+diagnosis takes seconds to minutes: the updates never wait for it, and it never delays
+the logger (it is niced below both).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+MIN_DRIVING_S = 15.0  # less than this carries no diagnosis worth waiting for
+GROWTH = 1.5  # try again once the data are this many times what the last try saw
+NICE = 19
+
+
+class BackgroundDiagnosis:
+    def __init__(self, path, vehicle_path: str | None, model: str):
+        self.path = str(path)
+        self.vehicle_path = vehicle_path
+        self.model = model
+        self.proc: subprocess.Popen | None = None
+        self.tried_at = 0.0  # driving seconds the last try saw
+        self.running_at = 0.0
+        self.text: str | None = None  # the verdict shown
+        self.runs = 0
+
+    def poll(self, driving_s: float, finished: bool = False) -> str | None:
+        """Collect a finished try, start the next when due; the verdict to show."""
+        if self.vehicle_path is None:
+            return None
+        if self.proc is not None and self.proc.poll() is not None:
+            out, _ = self.proc.communicate()
+            self.text = verdict(out, self.running_at) or self.text
+            self.tried_at = self.running_at
+            self.proc = None
+        due = driving_s >= MIN_DRIVING_S and (self.tried_at == 0 or driving_s >= GROWTH * self.tried_at
+                                              or (finished and driving_s > self.tried_at))
+        if self.proc is None and due:
+            self._start(driving_s)
+        if self.text is None:
+            if self.proc is not None:
+                return f"diagnosis: looking at the first {self.running_at:.0f} s of driving ..."
+            return f"diagnosis: after {MIN_DRIVING_S:.0f} s of driving"
+        return self.text
+
+    def _start(self, driving_s: float) -> None:
+        cmd = [sys.executable, "-m", "stid.cli", "diagnose", self.path, "--vehicle", self.vehicle_path,
+               "--model", self.model, "--json"]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                     preexec_fn=lambda: os.nice(NICE))
+        self.running_at = driving_s
+        self.runs += 1
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+def verdict(output: str, driving_s: float) -> str | None:
+    """One line from ``stid diagnose --json``: the best significant candidate with its own
+    parameters, or that nothing is missing; None when the output is not a diagnosis."""
+    try:
+        doc = json.loads(output)
+    except (json.JSONDecodeError, TypeError):
+        return None
+    if not isinstance(doc, dict) or "candidates" not in doc:
+        return None
+    best = next((c for c in doc["candidates"] if c.get("significant")), None)
+    at = f"(stid diagnose, {driving_s:.0f} s of driving)"
+    if best is None:
+        return f"diagnosis: nothing missing from {doc.get('model', 'the model')} that these data show {at}"
+    params = best.get("params", {})
+    units = best.get("units", {})
+    shown = ", ".join(_quantity(n, v, units.get(n, "")) for n, v in params.items())
+    return f"diagnosis: {best['effect']} likely{': ' + shown if shown else ''} {at}"
+
+
+def _quantity(name: str, value: float, unit: str) -> str:
+    """A parameter in the unit a person reads it in (ms for a lag, cm for an offset, deg)."""
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        return f"{name} ?"
+    if unit == "s" and abs(value) < 1:
+        return f"{name} {value * 1e3:.0f} ms"
+    if unit == "m" and abs(value) < 1:
+        return f"{name} {value * 1e2:.1f} cm"
+    if unit == "rad":
+        return f"{name} {math.degrees(value):.2f} deg"
+    return f"{name} {value:.3g} {unit}".rstrip()
