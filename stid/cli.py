@@ -319,6 +319,8 @@ def _cmd_live(args) -> int:
         from stid.errors import InputError
 
         raise InputError(f"--every {args.every:g}: give the seconds between updates, above 0 (e.g. 2)")
+    if args.check:  # stid-log --live checks the view's arguments before it opens the port
+        return 0
     return live(args.run, vehicle, args.model, targets, where, follow=args.follow, every=args.every,
                 web_port=args.web, json_lines=args.json, from_logger=args.from_logger,
                 diagnose=not args.no_diagnose)
@@ -459,6 +461,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="one JSON document per update on stdout (nothing else)")
     p.add_argument("--no-diagnose", action="store_true", help="do not run stid diagnose in the background")
     p.add_argument("--from-logger", action="store_true", help=argparse.SUPPRESS)  # stid-log --live's child
+    p.add_argument("--check", action="store_true", help=argparse.SUPPRESS)  # only check the arguments
     p.set_defaults(func=_cmd_live)
 
     p = sub.add_parser("batch", help="fit (and diagnose) many runs in parallel; one table and drift plots")

@@ -72,10 +72,13 @@ class Source:
         return snap
 
     def _read(self) -> Snapshot:
+        from host.mcap_scan import holds_a_log
         from stid.ros import bag as ros_bag
 
-        if ros_bag.kind_of(self.path) or self.path.is_dir():
-            return self._read_other()
+        if self.path.is_file() and self.path.stat().st_size == 0:
+            return Snapshot(state=[f"{self.path.name} is empty so far: waiting for the logger's first flush"])
+        if self.path.is_dir() or ros_bag.kind_of(self.path) or not holds_a_log(self.path):
+            return self._read_other()  # a ROS bag, a CSV: what the loader makes of it
         return self._read_stid_log()
 
     def _read_other(self) -> Snapshot:
@@ -124,7 +127,7 @@ class Source:
             snap.state.append(f"not usable yet: {_first_sentence(e)}")
             return snap
         last = snap.events[-1] if snap.events else None
-        if last is not None and last[1] == "disconnect":
+        if last is not None and last[1] == "disconnect" and not snap.finished:
             snap.state.append(f"the port went away at {last[0]:.0f} s; the logger waits for the same board")
         return _with_runs(snap, runs)
 
