@@ -209,7 +209,7 @@ def _words(label, m, s, seconds, which) -> str:
     if label == "speed":
         span = (f"now {s['speed']:.1f} m/s only" if s["speed_hi"] - s["speed_lo"] < 0.3 * s["speed"]
                 else f"now {s['speed_lo']:.1f}-{s['speed_hi']:.1f} m/s")
-        return f"a second speed, about {m.speed:.0f} m/s ({span}): {took}"
+        return f"a second speed, about {m.speed:.1f} m/s ({span}): {took}"
     if label == "band":
         return (f"more steering above {s['bw']:.0f} Hz (so far {100 * s['above_2hz']:.0f}% of the steer's power is "
                 f"above 2 Hz): quicker steering, up to {m.bandwidth:.0f} Hz, {took}")
