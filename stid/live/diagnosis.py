@@ -29,6 +29,7 @@ class BackgroundDiagnosis:
         self.tried_at = 0.0  # driving seconds the last try saw
         self.running_at = 0.0
         self.text: str | None = None  # the verdict shown
+        self.effect: str | None = None  # the effect it names (None: nothing named, or not yet)
         self.runs = 0
 
     def poll(self, driving_s: float, finished: bool = False) -> str | None:
@@ -38,6 +39,7 @@ class BackgroundDiagnosis:
         if self.proc is not None and self.proc.poll() is not None:
             out, _ = self.proc.communicate()
             self.text = verdict(out, self.running_at) or self.text
+            self.effect = named_effect(out) if self.text else self.effect
             self.tried_at = self.running_at
             self.proc = None
         due = driving_s >= MIN_DRIVING_S and (self.tried_at == 0 or driving_s >= GROWTH * self.tried_at
@@ -85,6 +87,14 @@ def verdict(output: str, driving_s: float) -> str | None:
     units = best.get("units", {})
     shown = ", ".join(_quantity(n, v, units.get(n, "")) for n, v in params.items())
     return f"diagnosis: {best['effect']} likely{': ' + shown if shown else ''} {at}"
+
+
+def named_effect(output: str) -> str | None:
+    try:
+        doc = json.loads(output)
+        return next((c["effect"] for c in doc["candidates"] if c.get("significant")), None)
+    except (json.JSONDecodeError, TypeError, KeyError):
+        return None
 
 
 def _quantity(name: str, value: float, unit: str) -> str:

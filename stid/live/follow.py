@@ -67,6 +67,11 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                 up.done = done_line(up)
             if diag is not None:
                 up.diagnosis = diag.poll(up.driving_s, snap.finished)
+                if diag.effect and up.params and not up.done:
+                    # a model without what the car has: its residual is model error, which more
+                    # driving does not shrink as the plan assumes
+                    up.lacking = up.lacking + [f"a model with what the diagnosis names: stid live ... --model "
+                                               f"{model}+{diag.effect} (the fit then misses less)"]
             last = up
             _show(view, server, up, json_lines, stream)
             while not msgs.empty():

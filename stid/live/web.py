@@ -4,8 +4,8 @@ The standard library's HTTP server, on the loopback interface only (nothing leav
 machine). The page (``page.html``: one file, no external assets) follows the updates
 through server-sent events (``/events``), or by polling ``/state`` where those are not
 available, and redraws without a reload. It tells the server which update it shows
-(``POST /ack``): the view can then say whether the page keeps up, and a test can check
-what a real browser drew.
+(``POST /ack``, read back at ``/viewers``): whether a page keeps up can be seen, and a
+test can check what a real browser drew.
 """
 
 from __future__ import annotations
@@ -42,6 +42,10 @@ class LiveServer:
                     self._send(200, "application/json", server._encoded())
                 elif path == "/events":
                     server._stream(self)
+                elif path == "/viewers":  # what each open page says it shows
+                    with server._cond:
+                        body = json.dumps(server.acks).encode()
+                    self._send(200, "application/json", body)
                 else:
                     self._send(404, "text/plain", b"not found: the live view is at /")
 
