@@ -70,8 +70,10 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                 if diag.effect and up.params and not up.done:
                     # a model without what the car has: its residual is model error, which more
                     # driving does not shrink as the plan assumes
-                    up.lacking = up.lacking + [f"a model with what the diagnosis names: stid live ... --model "
-                                               f"{model}+{diag.effect} (the fit then misses less)"]
+                    line = (f"a model with what the diagnosis names: stid live ... --model {model}+{diag.effect} "
+                            "(the fit then misses less)")
+                    if line not in up.lacking:
+                        up.lacking = up.lacking + [line]
             last = up
             _show(view, server, up, json_lines, stream)
             while not msgs.empty():
