@@ -1,0 +1,383 @@
+"""stid live: the numbers stid fit gives on the file at that moment, what the data lack,
+bad input said in words; the views (terminal, web page in a real browser); the logger
+never loses a sample to it.
+
+Data: a single-track car written here from its textbook equations (scipy's lsim, noise
+of the sensors' size), the simulated car running the real firmware, and hand-framed
+logger streams (no HELLO).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import tool
+
+TRUTH = {"Cf": 400.0, "Cr": 475.0, "Iz": 0.25}
+MASS, A, B = 9.31, 0.2326, 0.2874
+VEHICLE = f'name = "physics car"\nmass = {MASS}\na = {A}\nb = {B}\n'
+
+
+def bicycle_csv(path: Path, seconds: float, speeds=(4.0,), seed: int = 0, fs: float = 500.0,
+                steer_rms_deg: float = 2.0) -> None:
+    """The linear single track from its equations, m (vy' + vx r) = Fyf + Fyr and
+    Iz r' = a Fyf - b Fyr with Fyf = Cf (delta - (vy + a r)/vx), Fyr = -Cr (vy - b r)/vx,
+    driven by 4 Hz band-limited random steer; ay = (Fyf + Fyr)/m. Each speed for
+    ``seconds``; white noise of the ADXL335/LISY300AL's size on ay and r."""
+    from scipy import signal as sg
+
+    rng = np.random.default_rng(seed)
+    cols = []
+    t0 = 0.0
+    sos = sg.butter(6, 4.0, fs=fs, output="sos")
+    for vx in speeds:
+        n = int(seconds * fs)
+        steer = sg.sosfiltfilt(sos, rng.standard_normal(n + 2000))[1000:-1000]
+        steer *= math.radians(steer_rms_deg) / steer.std()
+        Cf, Cr, Iz = TRUTH["Cf"], TRUTH["Cr"], TRUTH["Iz"]
+        Amat = np.array([[-(Cf + Cr) / (MASS * vx), (-A * Cf + B * Cr) / (MASS * vx) - vx],
+                         [(-A * Cf + B * Cr) / (Iz * vx), -(A * A * Cf + B * B * Cr) / (Iz * vx)]])
+        Bmat = np.array([[Cf / MASS], [A * Cf / Iz]])
+        # outputs: ay = vy' + vx r, r
+        C = np.array([Amat[0] + [0.0, vx], [0.0, 1.0]])
+        D = np.array([[Bmat[0, 0]], [0.0]])
+        t = np.arange(n) / fs
+        _, y, _ = sg.lsim((Amat, Bmat, C, D), steer, t)
+        ay = y[:, 0] + 0.05 * rng.standard_normal(n)
+        r = y[:, 1] + 0.005 * rng.standard_normal(n)
+        cols.append(np.column_stack([t0 + t, steer, ay, r, np.full(n, vx)]))
+        t0 += n / fs
+    data = np.vstack(cols)
+    np.savetxt(path, data, delimiter=",", header="t,steer,ay,r,vx", comments="", fmt="%.8g")
+
+
+@pytest.fixture(scope="module")
+def car(tmp_path_factory):
+    d = tmp_path_factory.mktemp("live")
+    (d / "car.toml").write_text(VEHICLE)
+    return d
+
+
+def _vehicle(car_dir):
+    from stid.vehicle_file import load_vehicle
+
+    return load_vehicle(car_dir / "car.toml")
+
+
+def _stid_fit_json(run: Path, vehicle: Path, model: str = "bicycle") -> dict:
+    out = subprocess.run([tool("stid"), "fit", str(run), "--vehicle", str(vehicle), "--model", model,
+                          "--method", "time", "--json"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+# -- the numbers are stid fit's ---------------------------------------------------------
+
+def test_each_update_gives_what_stid_fit_gives_on_the_file_at_that_moment(car, tmp_path):
+    """A CSV growing row by row (as a logger appends), the estimator warm-started from one
+    update to the next; at every update stid fit (a fresh process, cold start, multistart)
+    on a copy of the file as it was then. Same optimum: the values differ by a small part
+    of the interval, and the intervals by a few percent."""
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+
+    full = tmp_path / "full.csv"
+    bicycle_csv(full, 40.0, seed=3)
+    rows = full.read_text().splitlines(keepends=True)
+    growing = tmp_path / "growing.csv"
+    est = Estimator(_vehicle(car), "bicycle", {"Iz": 1.0}, "test")
+    compared = 0
+    for frac in (0.35, 0.55, 0.75, 1.0):
+        growing.write_text("".join(rows[:1 + int(frac * (len(rows) - 1))]))
+        up = est.update(Source(growing, _vehicle(car)).poll(), growing.name)
+        assert up.params, up.state
+        moment = tmp_path / f"moment_{frac}.csv"
+        shutil.copy(growing, moment)
+        ref = _stid_fit_json(moment, car / "car.toml")["params"]
+        for p in up.params:
+            lo, hi = ref[p.name]["ci95"]
+            half = 0.5 * (hi - lo)
+            assert abs(p.value - ref[p.name]["value"]) <= 0.05 * half, (frac, p, ref[p.name])
+            assert abs(p.half95 / half - 1.0) <= 0.05, (frac, p, ref[p.name])
+            # and the physics: the interval holds the car's value
+            assert abs(p.value - TRUTH[p.name]) <= p.half95 * 1.05, (frac, p)
+        compared += 1
+    assert compared == 4 and len(est.history) == 4
+
+
+def test_a_growing_stid_log_read_up_to_its_last_chunk_matches_stid_fit(tmp_path):
+    """What a reader sees of a file stid-log is writing is a byte prefix of it (flushed
+    chunks, then a chunk cut anywhere): the live update on such a prefix is stid fit's on
+    the same bytes."""
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+    from stid.vehicle_file import load_vehicle
+
+    run = tmp_path / "run.mcap"
+    r = subprocess.run([tool("stid-sim"), "--fast", "-o", str(run), "--duration", "40", "--seed", "4",
+                        "--speed-profile", "track", "--effects", "actuator_lag"], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    veh_path = Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml"
+    vehicle = load_vehicle(veh_path)
+    data = run.read_bytes()
+    est = Estimator(vehicle, "bicycle+actuator_lag", {}, "test")
+    for frac in (0.5, 0.8):
+        part = tmp_path / f"part_{frac}.mcap"
+        part.write_bytes(data[:int(frac * len(data)) + 1234])  # cut inside a chunk
+        up = est.update(Source(part, vehicle).poll(), part.name)
+        assert up.params and not up.finished, up.state
+        ref = _stid_fit_json(part, veh_path, "bicycle+actuator_lag")["params"]
+        for p in up.params:
+            lo, hi = ref[p.name]["ci95"]
+            half = 0.5 * (hi - lo)
+            assert abs(p.value - ref[p.name]["value"]) <= 0.05 * half, (frac, p, ref[p.name])
+            assert abs(p.half95 / half - 1.0) <= 0.05, (frac, p, ref[p.name])
+    # the servo lag is the car's (the simulator's 60 ms)
+    tau = next(p for p in up.params if p.name == "tau_steer")
+    assert abs(tau.value - 0.060) <= max(tau.half95, 0.002), tau
+
+
+# -- what the data lack -----------------------------------------------------------------
+
+def test_done_once_every_target_is_reached_and_not_before(car, tmp_path):
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+
+    run = tmp_path / "run.csv"
+    bicycle_csv(run, 30.0, seed=5)
+    loose = Estimator(_vehicle(car), "bicycle", {"Cf": 20.0, "Cr": 20.0, "Iz": 20.0}, "test")
+    up = loose.update(Source(run, _vehicle(car)).poll(), run.name)
+    assert up.done and up.done.startswith("done:"), up
+    tight = Estimator(_vehicle(car), "bicycle", {"Iz": 0.01}, "test")
+    up = tight.update(Source(run, _vehicle(car)).poll(), run.name)
+    assert up.done is None
+    iz = next(p for p in up.params if p.name == "Iz")
+    assert iz.met is False and iz.target == 0.01
+    assert up.lacking, "a target not reached says what to drive"
+
+
+def test_more_of_the_same_is_asked_for_in_the_seconds_information_needs(car, tmp_path):
+    """One speed, white noise, an exact model: information grows with time, so Iz's
+    interval shrinks as 1/sqrt(seconds). Asked for half the present interval, the view asks
+    for about 3 times the driving so far of something; its own words say what and how long."""
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+
+    run = tmp_path / "run.csv"
+    bicycle_csv(run, 30.0, seed=6)
+    est = Estimator(_vehicle(car), "bicycle", {}, "test")
+    first = est.update(Source(run, _vehicle(car)).poll(), run.name)
+    iz = next(p for p in first.params if p.name == "Iz")
+    est.targets = {"Iz": iz.percent / 2}
+    up = est.update(Source(run, _vehicle(car)).poll(), run.name)
+    line = up.lacking[-1]
+    assert "Iz" in line and "s" in line, up.lacking
+    m = [float(w) for w in line.replace("about ", "").split() if w.replace(".", "").isdigit()]
+    assert m, line
+    if line.startswith("more of the same"):
+        # four times the information: three times the seconds driven so far (~25 s fitted)
+        assert 0.5 * 3 * up.driving_s <= m[0] <= 2 * 3 * up.driving_s, (line, up.driving_s)
+
+
+def test_a_second_speed_is_what_separates_servo_lag_from_tyre_relaxation(tmp_path):
+    """At one speed a servo lag tau and a relaxation lag sigma/vx look alike (the plan
+    warns: 0.9+ correlated); only a second speed tells them apart. On one-speed data the
+    view asks for a second speed for them, not for more of the same."""
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+    from stid.vehicle_file import load_vehicle
+
+    run = tmp_path / "one_speed.mcap"
+    r = subprocess.run([tool("stid-sim"), "--fast", "-o", str(run), "--duration", "40", "--seed", "7",
+                        "--speed", "4", "--effects", "actuator_lag,tyre_relaxation"], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    vehicle = load_vehicle(Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml")
+    est = Estimator(vehicle, "bicycle+actuator_lag+tyre_relaxation", {}, "test")
+    now = {p.name: p.percent for p in est.update(Source(run, vehicle).poll(), run.name).params}
+    est.targets = {"tau_steer": now["tau_steer"] / 2, "sigma_f": now["sigma_f"] / 2}  # 4x the information
+    up = est.update(Source(run, vehicle).poll(), run.name)
+    assert up.params, up.state
+    assert any(line.startswith("a second speed") and "now 4.0 m/s only" in line for line in up.lacking), up.lacking
+
+
+def test_no_stand_still_asks_for_one_and_stand_still_only_asks_to_drive(tmp_path):
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml")
+    rolling = tmp_path / "rolling.mcap"
+    still = tmp_path / "still.mcap"
+    for path, args in ((rolling, ["--still", "0", "--duration", "12"]),
+                       (still, ["--manoeuvre", "standstill", "--duration", "6"])):
+        r = subprocess.run([tool("stid-sim"), "--fast", "-o", str(path), *args], capture_output=True, text=True,
+                           timeout=300)
+        assert r.returncode == 0, r.stderr
+    up = Estimator(vehicle, "bicycle", {}, "t").update(Source(rolling, vehicle).poll(), "rolling")
+    assert any("stand still 2 s for the gyro zero" in s for s in up.lacking), up.lacking
+    up = Estimator(vehicle, "bicycle", {}, "t").update(Source(still, vehicle).poll(), "still")
+    assert not up.params
+    assert any("only stood still" in s for s in up.state), up.state
+    assert any(s.startswith("drive:") for s in up.lacking), up.lacking
+
+
+# -- bad input, said in words ------------------------------------------------------------
+
+def test_no_hello_yet_a_missing_file_an_empty_one_and_a_quiet_port_are_said(tmp_path, monkeypatch):
+    from test_files_damage import circle_stream, record
+
+    from stid.live import source as source_mod
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+    from stid.vehicle_file import default_vehicle
+
+    vehicle = default_vehicle()
+    est = Estimator(vehicle, "bicycle", {}, "t")
+    missing = Source(tmp_path / "not_yet.mcap", vehicle)
+    assert "waiting for" in est.update(missing.poll()).state[0]
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    assert "empty so far" in est.update(Source(empty, vehicle).poll()).state[0]
+    bare = tmp_path / "bare.mcap"
+    record(circle_stream(6.0, hello_every_s=None), bare)
+    up = est.update(Source(bare, vehicle).poll())
+    assert any(s.startswith("no HELLO from the board yet") for s in up.state), up.state
+    assert not up.params
+    # the port goes quiet: no new sample for QUIET_S, the view says so and goes on
+    monkeypatch.setattr(source_mod, "QUIET_S", 0.3)
+    half = tmp_path / "half.mcap"
+    record(circle_stream(6.0), half, flush_s=1.0)
+    data = half.read_bytes()
+    half.write_bytes(data[:len(data) // 2])
+    src = Source(half, vehicle)
+    assert not any("gone quiet" in s for s in src.poll().state)
+    time.sleep(0.4)
+    snap = src.poll()
+    assert any("no new samples for" in s and "gone quiet" in s for s in snap.state), snap.state
+    assert snap.samples > 0  # what it had is kept
+
+
+def test_targets_from_the_command_line_the_vehicle_file_or_the_default(tmp_path):
+    from stid.errors import InputError
+    from stid.live.targets import DEFAULT_PERCENT, choose, parse_cli
+    from stid.models.model import Model
+    from stid.vehicle_file import load_vehicle
+
+    (tmp_path / "v.toml").write_text(VEHICLE + '\n[targets]\nIz = "3%"\ntau_steer = 4\n')
+    v = load_vehicle(tmp_path / "v.toml")
+    assert v.targets == {"Iz": 3.0, "tau_steer": 4.0}
+    m = Model("bicycle+actuator_lag", v)
+    assert choose(m, parse_cli(["Cf=2%"]), v.targets) == ({"Cf": 2.0}, "--target")
+    assert choose(m, {}, v.targets)[0] == {"Iz": 3.0, "tau_steer": 4.0}
+    plain = Model("bicycle+steer_offset", load_vehicle(car_file(tmp_path)))
+    got, where = choose(plain, {}, {})
+    assert got == {"Cf": DEFAULT_PERCENT, "Cr": DEFAULT_PERCENT, "Iz": DEFAULT_PERCENT} and "default" in where
+    for bad, words in (("Iz=0%", "above 0"), ("Iz", "NAME=PERCENT"), ("Iz=abc", "a percent"), ("Qz=3", "no parameter Qz")):
+        with pytest.raises(InputError, match=words):
+            choose(m, parse_cli([bad]), {})
+    (tmp_path / "w.toml").write_text(VEHICLE + '\n[targets]\nIzz = "3%"\n')
+    with pytest.raises(InputError, match="did you mean 'Iz'"):
+        load_vehicle(tmp_path / "w.toml")
+
+
+def car_file(d: Path) -> Path:
+    p = d / "plain.toml"
+    p.write_text(VEHICLE)
+    return p
+
+
+def test_user_errors_end_in_one_line_and_a_non_zero_exit(tmp_path):
+    car = car_file(tmp_path)
+    cases = [
+        ([tool("stid"), "live", "x.mcap", "--vehicle", str(tmp_path / "nope.toml")], "does not exist"),
+        ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--target", "Iz=200%"], "below 100"),
+        ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--model", "bicycle+warp"], "warp"),
+        ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--every", "0"], "above 0"),
+        ([tool("stid-log"), "/dev/null", "--live"], "--vehicle"),
+        ([tool("stid-log"), "/dev/null", "--target", "Iz=3%"], "add --live"),
+        ([tool("stid-log"), "/dev/null", "--live", "--vehicle", str(car), "--target", "Q=1"], "no parameter Q"),
+    ]
+    for cmd, words in cases:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and "Traceback" not in r.stderr, (cmd, r.stderr)
+        errors = [line for line in r.stderr.splitlines() if "error" in line]
+        assert len(errors) == 1 and words in errors[0], (cmd, r.stderr)
+
+
+# -- the views -------------------------------------------------------------------------
+
+def _update(**kw):
+    from stid.live.estimator import ParamState, Update
+
+    up = Update(seq=kw.get("seq", 1), path="run.mcap", model="bicycle", seconds=kw.get("seconds", 12.0),
+                driving_s=10.0, targets_from="--target")
+    up.params = [ParamState("Iz", "kg m^2", 0.25, 0.01, 3.0)]
+    up.fit = {"ay": 95.0, "r": 97.0}
+    up.lacking = ["a second speed, about 6.0 m/s (now 4.0 m/s only): about 40 s of it for Iz"]
+    return up
+
+
+def test_terminal_redraws_in_place_and_keeps_messages_above_and_piped_is_plain_lines():
+    from stid.live.terminal import TerminalView
+
+    out = io.StringIO()
+    tv = TerminalView(out, tty=True)
+    tv.show(_update())
+    n = out.getvalue().count("\n")
+    tv.message("stid-log: warning: the port went away")
+    tv.show(_update(seq=2, seconds=14.0))
+    text = out.getvalue()
+    assert f"\x1b[{n}F\x1b[J" in text  # back over the table, cleared, redrawn
+    after = text.rsplit("the port went away", 1)[1]
+    assert "update 2" in after and "\x1b[" in after  # the message stays; the table comes back below it
+    assert "±4.0%" in text and "not yet" in text
+    piped = io.StringIO()
+    tv = TerminalView(piped, tty=False)
+    tv.show(_update())
+    assert "\x1b" not in piped.getvalue()
+    assert all(line.startswith("[  12.0 s]") for line in piped.getvalue().splitlines())
+
+
+def test_the_web_server_streams_updates_and_serves_the_page_only_on_loopback():
+    from stid.live.web import LiveServer
+
+    srv = LiveServer(0)
+    try:
+        assert srv.url.startswith("http://127.0.0.1:")
+        page = urllib.request.urlopen(srv.url, timeout=5).read().decode()
+        assert "EventSource" in page and "http" not in page.split("<script>", 1)[1].replace("/ack", "")
+        srv.publish(_update().to_json())
+        with urllib.request.urlopen(srv.url + "events", timeout=5) as ev:
+            first = _sse(ev)
+            srv.publish(_update(seq=2, seconds=20.0).to_json())
+            second = _sse(ev)
+        assert first["seq"] == 1 and second["seq"] == 2 and second["seconds"] == 20.0
+        assert json.loads(urllib.request.urlopen(srv.url + "state", timeout=5).read())["seq"] == 2
+    finally:
+        srv.close()
+
+
+def _sse(stream) -> dict:
+    data = None
+    while True:
+        line = stream.readline().decode().rstrip("\n")
+        if line.startswith("data: "):
+            data = json.loads(line[6:])
+        elif line == "" and data is not None:
+            return data
