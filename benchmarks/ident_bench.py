@@ -135,7 +135,7 @@ def diagnose_time(d: Path, quick: bool) -> dict:
             "candidates": len(rounds[0].candidates), "found": rounds[0].best.effect,
             "fully_fitted": sum(c.result is not None for c in rounds[0].candidates),
             "cli_two_s": wall2, "cli_two_cpu_s": cpu2,
-            "two_found": best.effect if best else "nothing",
+            "two_found": "+".join(first.named) or "nothing",
             "two_evidence": best.evidence.reason if best else first.candidates[0].why_not}
 
 

@@ -19,6 +19,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"%(prog)s {installed_version()}")
     ap.add_argument("--manoeuvre", default="random_steer", choices=manoeuvres.MANOEUVRES)
     ap.add_argument("--effects", default="", help="comma-separated hidden effects: " + ", ".join(vehicle.EFFECT_NAMES))
+    ap.add_argument("--car", metavar="FILE", help="another car: a TOML file of its truth (mass, a, b, Iz, Cf, Cr, "
+                                                  "...; see hil_sim/car_file.py); default the reference 1:8 car")
     ap.add_argument("--effect-file", action="append", default=[], metavar="FILE",
                     help="hide your own effect: a Python file defining steer_angle, body_loads and/or "
                          "sensor_signals (see hil_sim/effect_file.py; repeatable)")
@@ -69,7 +71,12 @@ def config_from_args(args):
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
     unknown = set(effects) - set(vehicle.EFFECT_NAMES)
     if unknown:
-        raise ValueError(f"unknown effect(s) {', '.join(sorted(unknown))}; known: {', '.join(vehicle.EFFECT_NAMES)}")
+        from difflib import get_close_matches
+
+        near = [m for u in sorted(unknown) for m in get_close_matches(u, vehicle.EFFECT_NAMES, n=1)]
+        raise ValueError(f"unknown effect(s) {', '.join(sorted(unknown))}"
+                         + (f" (did you mean {', '.join(near)}?)" if near else "")
+                         + f"; known: {', '.join(vehicle.EFFECT_NAMES)}")
     _check_options(args)
     stalls = []
     for s in args.stall:
@@ -77,6 +84,8 @@ def config_from_args(args):
             at, dur = (float(x) for x in s.split(":"))
         except ValueError:
             raise ValueError(f"--stall takes AT:FOR in seconds, e.g. 5:0.8 (got {s!r})") from None
+        if not (0 <= at <= MAX_DURATION_S and 0 < dur <= MAX_DURATION_S):
+            raise ValueError(f"--stall {s}: AT from 0 and FOR above 0, each at most {MAX_DURATION_S:g} s")
         stalls.append((at, dur))
     plan = manoeuvres.Plan(name=args.manoeuvre, duration=args.duration, speed=args.speed,
                            steer_amp=math.radians(args.steer_amp), bandwidth=args.bandwidth, still=args.still,
@@ -87,12 +96,16 @@ def config_from_args(args):
 
     for f in args.effect_file:  # fail here, before any simulation, on a file that cannot work
         load_effect_file(f)
-    return SimConfig(plan=plan, effects=effects, effect_files=tuple(args.effect_file), seed=args.seed,
+    from hil_sim.car_file import load_car
+
+    car = load_car(args.car) if args.car else vehicle.CarParams()
+    return SimConfig(plan=plan, effects=effects, effect_files=tuple(args.effect_file), seed=args.seed, car=car,
                      board=args.board, rate_hz=args.rate, batch=args.batch, start_ticks=args.start_ticks,
                      stalls=tuple(stalls), car_fault_at=args.car_fault,
                      wheel_speeds=args.wheel_speeds, wheel_ppr=args.wheel_ppr)
 
 
+MAX_DURATION_S = 4 * 3600.0  # s: the manoeuvre is planned whole before it is driven
 MAX_SPEED = 30.0  # m/s: the fastest 1:8 cars; the single track is not for more
 MAX_STEER_DEG = 30.0  # an RC car's steering lock
 
@@ -108,8 +121,15 @@ def _check_options(args) -> None:
         if not ok:
             raise ValueError(text)
 
-    need(args.duration > 0, "--duration must be positive (seconds)")
-    need(args.still >= 0, "--still must be 0 or more seconds")
+    # the manoeuvre is planned whole before it is driven (~45 kB per second of it), so a
+    # duration has an end: 4 h is a long track day, and ~0.7 GB
+    need(0 < args.duration <= MAX_DURATION_S, f"--duration {args.duration:g}: give more than 0 and at most "
+         f"{MAX_DURATION_S:g} s ({MAX_DURATION_S / 3600:g} h); for a longer session record several runs")
+    need(0 <= args.still <= MAX_DURATION_S - args.duration,
+         f"--still {args.still:g}: give 0 or more seconds, at most {MAX_DURATION_S:g} s with --duration")
+    for flag, value in (("--disconnect-at", args.disconnect_at), ("--reconnect-after", args.reconnect_after)):
+        need(value is None or 0 <= value <= MAX_DURATION_S,
+             f"{flag} {value:g}: give 0 to {MAX_DURATION_S:g} seconds" if value is not None else "")
     need(args.manoeuvre == "standstill" or 1.0 <= args.speed <= MAX_SPEED,
          f"--speed {args.speed:g}: a driving manoeuvre needs 1 to {MAX_SPEED:g} m/s (standing still: "
          "--manoeuvre standstill)")

@@ -112,8 +112,8 @@ def main() -> int:
     if OUT.exists():
         shutil.rmtree(OUT)
     OUT.mkdir()
-    vehicle = OUT / "car.toml"
-    shutil.copy(Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml", vehicle)
+    vehicle = OUT / "car.toml"  # written by stid calibrate from the example's tape-and-scales values
+    example = Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml"
     say("stid demo: a simulated 1:8 car runs the real firmware (MicroPython) and streams over emulated\n"
         "serial ports. Something about this car is not a textbook bicycle. Let us find out what.\n")
     say("1. Drive: stand still (calibration), then random steer while speeding up and braking around\n"
@@ -123,8 +123,8 @@ def main() -> int:
 
     say("\n2. Calibrate the sensors from the stand-still run")
     with Ticker("stid calibrate"):
-        proc = subprocess.run([tool("stid"), "calibrate", str(files["standstill"]), "--vehicle", str(vehicle)],
-                              capture_output=True, text=True)
+        proc = subprocess.run([tool("stid"), "calibrate", str(files["standstill"]), "--vehicle", str(example),
+                               "-o", str(vehicle)], capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"demo: stid calibrate failed: {proc.stderr.strip()}")
     say("\n".join("    " + line for line in proc.stderr.strip().splitlines()))

@@ -91,6 +91,9 @@ def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: 
     return stats
 
 
+FLUSH_US = 1_000_000  # as stid-log (host.logger) flushes, in the car's time
+
+
 class RecordStream:
     """The firmware's bytes, in pieces of any size, through the recorder stid-log uses; each
     frame is received when the MCU sent it (its header time, unwrapped) plus a fixed latency."""
@@ -103,6 +106,7 @@ class RecordStream:
         self._raw_t: int | None = None  # the last frame's MCU time as sent
         self._t = 0  # ... unwrapped
         self.base: int | None = None
+        self._flushed_t: int | None = None  # MCU time [us] of the last flush
 
     def feed(self, data: bytes) -> None:
         buf = self._tail + data
@@ -119,6 +123,13 @@ class RecordStream:
                 self.rec.event("connect", self.base, "simulated car, faster than real time")
             self.rec.feed(buf[pos:pos + len(part) + 1], self.base + t * 1000 + HOST_LATENCY_NS)
             pos += len(part) + 1
+            # stid-log flushes every second: the file is shaped as a recording is (chunks of about
+            # a second, so damage to one costs about a second of the run, not all of it)
+            if self._flushed_t is None:
+                self._flushed_t = t
+            elif t - self._flushed_t >= FLUSH_US:
+                self.log.flush()
+                self._flushed_t = t
 
     def _frame_time(self, part: bytes) -> int:
         try:
@@ -201,6 +212,8 @@ def write_columns(path, cols: dict) -> None:
         w = csv.writer(f)
         w.writerow(names)
         for row in zip(*(cols[n] for n in names)):
+            if any(x != x for x in row):  # a value the samples cannot tell (NaN): the row is left out
+                continue
             w.writerow([f"{row[0]:.6f}"] + [f"{x:.6g}" for x in row[1:]])
 
 

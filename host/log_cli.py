@@ -78,6 +78,11 @@ def main(argv=None) -> int:
             return repair_cli(args.repair, args.repair_output, args.hello_from)
         if not args.port:
             ap.error("give the serial port, e.g. stid-log /dev/ttyUSB0 (or --repair FILE)")
+        for flag, value in (("--duration", args.duration), ("--idle-timeout", args.idle_timeout),
+                            ("--reconnect-timeout", args.reconnect_timeout)):
+            # inf is a fair "no end" (no option is also); nan or a negative time is a typo
+            if value is not None and not value > 0:
+                ap.error(f"{flag} {value:g}: give a positive number of seconds")
         live = live_arguments(args, ap)
         if live is not None:  # a vehicle file the view cannot read is refused now, not after the run
             check_live(live)

@@ -471,5 +471,16 @@ def summary_line(stats: dict) -> str:
     return (f"{stats['file']}: {stats['samples']} samples, {sum(stats['frames'].values())} frames, "
             f"{stats['lost_frames']} lost, {bad} rejected ({e['crc']} CRC), "
             f"{stats['missing_samples']} samples missing ({stats['mcu_overruns']} overrun, {stats.get('mcu_missed', 0)} timer periods missed on the car), "
-            f"{len(stats['gaps'])} unplug gaps{said} "
-            f"[{stats['stop']}]")
+            f"{len(stats['gaps'])} unplug gaps{said}; {stop_words(stats['stop'])}")
+
+
+def stop_words(reason) -> str:
+    """Why the log ended, in words (the file's stats keep the short code)."""
+    if reason == "duration":
+        return "stopped after --duration"
+    if reason == "port gone":
+        return "stopped: the port was unplugged and did not come back within --reconnect-timeout"
+    if reason in ("SIGINT", "SIGTERM", "SIGHUP"):
+        return {"SIGINT": "stopped by Ctrl-C", "SIGTERM": "stopped by SIGTERM (kill)",
+                "SIGHUP": "stopped: its terminal closed (SIGHUP)"}[reason]
+    return f"stopped ({reason})" if reason else "stopped"

@@ -74,6 +74,73 @@ SI_SCHEMA = _obj(
      **{k: {"type": ["number", "null"], "description": f"[{unit}] {text}"} for k, (unit, text) in SI_FIELDS.items()}},
     required=["boot", "index", "t", "ay", "r"])
 
+_CHANNEL = {"anyOf": [{"type": "null"}, _obj(
+    "an analog channel (null: the board does not sample it)",
+    {"pin": _INT, "part": {**_STR, "description": "ADXL335, LISY300AL or divider"},
+     "out": {**_STR, "description": "which output of the part"},
+     "bandwidth_hz": {**_NUM_OR_NULL, "description": "[Hz] the analog output filter (first order)"}})]}
+_WHEEL = _obj("a hall wheel-speed sensor", {"pin": _INT, "pulses_per_rev": _INT,
+                                            "wheel": {**_STR, "description": "fl, fr, rl or rr"}})
+HELLO_SCHEMA = _obj(
+    "The firmware's HELLO: what the board samples and how (full or compact form)",
+    {"proto": _INT, "fw": _STR_OR_NULL, "board": _STR_OR_NULL, "boot_id": _STR, "rate_hz": _NUM,
+     "batch": _INT, "mod": {**_INT, "description": "the tick modulus (2^30 for MicroPython's ticks_us)"},
+     "adc": _obj("the ADC", {"bits": _INT, "vref": {**_NUM, "description": "[V]"},
+                             "unit": {**_STR, "description": "count (RP2040) or mV (ESP32)"}}),
+     "adc_clip_v": {**_NUM_OR_NULL, "description": "[V] where the ADC clips (null: at its reference)"},
+     "channels": _obj("the analog channels", {ch: _CHANNEL for ch in ("ax", "ay", "az", "yaw", "vbat")}),
+     "steer": _obj("the steering pulse input", {"pin": _INT, "period_us": _INT, "timeout_us": _INT}),
+     "wheel": _WHEEL, "wheels": {"type": "array", "items": _WHEEL},
+     "uid": {**_STR_OR_NULL, "description": "the MCU's unique id (hex): the same board across reboots"},
+     "micropython": _STR_OR_NULL, "timer": {**_STR_OR_NULL, "description": "hard or soft"},
+     "reset_cause": _STR_OR_NULL,
+     "link": {"anyOf": [{"type": "null"}, _obj("the serial link", {
+         "kind": {**_STR, "description": "usb, uart or pipe"}, "baud": _INT_OR_NULL,
+         "bytes_per_sample": {**_NUM, "description": "on the wire, framing shared by a batch"}})]},
+     "capture": _obj("how the board captures its inputs (absent: both by the CPU)", {
+         "adc": {**_STR, "description": "cpu (read in the timer interrupt) or dma (a hardware scan)"},
+         "servo": {**_STR, "description": "irq (pin interrupts) or pio (a PIO state machine)"}}),
+     "sim": {"type": "boolean"}, "hello": {**_STR_OR_NULL, "description": "full or compact"},
+     "supplied_from": {**_STR, "description": "set when this HELLO was not received but taken "
+                                              "from a vehicle file or an earlier log"},
+     "unknown": {"type": "object", "description": "keys this stid does not know (a newer firmware, a vehicle "
+                                                  "file's [board] table), kept as they came; dotted paths for "
+                                                  "keys inside the tables above"}},
+    required=["boot_id"])
+
+
+def conform(doc, schema: dict, unknown: dict, path: str = ""):
+    """``doc`` with every key its (strict) schema does not declare moved into ``unknown``,
+    under its dotted path: the message validates, and nothing sent is dropped."""
+    if isinstance(schema, dict) and "anyOf" in schema:
+        objs = [s for s in schema["anyOf"] if s.get("type") == "object"]
+        return conform(doc, objs[0], unknown, path) if objs and isinstance(doc, dict) else doc
+    if not isinstance(doc, dict) or not isinstance(schema, dict) or schema.get("type") != "object":
+        if isinstance(doc, list) and isinstance(schema, dict) and "items" in schema:
+            return [conform(d, schema["items"], unknown, f"{path}{i}.") for i, d in enumerate(doc)]
+        return doc
+    props = schema.get("properties", {})
+    if schema.get("additionalProperties", True) is not False:
+        return doc
+    out = {}
+    for k, v in doc.items():
+        if k in props:
+            out[k] = conform(v, props[k], unknown, f"{path}{k}.")
+        else:
+            unknown[f"{path}{k}"] = v
+    return out
+
+
+def hello_message(doc: dict) -> dict:
+    """A HELLO as /stid/hello carries it (see ``conform``; the reader merges ``unknown`` back)."""
+    unknown = {}
+    out = conform({k: v for k, v in doc.items() if k != "unknown"}, HELLO_SCHEMA, unknown)
+    unknown.update(doc.get("unknown") or {})
+    if unknown:
+        out["unknown"] = unknown
+    return out
+
+
 SCHEMAS = {
     "stid.Sample": SI_SCHEMA,
     "stid.Status": _obj(
@@ -86,21 +153,7 @@ SCHEMAS = {
          "missed": {**_INT_OR_NULL, "description": "timer periods with no sample (protocol 3; null before)"},
          "late_max_us": {**_INT_OR_NULL, "description": "largest lateness of a sample [us] (protocol 3)"}},
         required=["boot", "seq", "uptime_ms", "samples", "overruns"]),
-    "stid.Hello": _obj(
-        "The firmware's HELLO: what the board samples and how (full or compact form)",
-        {"proto": _INT, "fw": _STR_OR_NULL, "board": _STR_OR_NULL, "boot_id": _STR, "rate_hz": _INT,
-         "batch": _INT, "mod": _INT,
-         "adc": _obj("ADC", {"bits": _INT, "vref": _NUM, "unit": _STR}, extra=True),
-         "adc_clip_v": _NUM_OR_NULL,
-         "channels": {"type": "object", "additionalProperties": {"type": ["object", "null"]}},
-         "steer": {"type": "object"}, "wheel": {"type": "object"},
-         "wheels": {"type": "array", "items": {"type": "object"}},
-         "uid": {**_STR_OR_NULL, "description": "the MCU's unique id (hex): the same board across reboots"},
-         "micropython": _STR_OR_NULL, "timer": _STR_OR_NULL, "reset_cause": _STR_OR_NULL,
-         "link": {"type": ["object", "null"]}, "sim": {"type": "boolean"}, "hello": _STR_OR_NULL,
-         "supplied_from": {**_STR, "description": "set when this HELLO was not received but taken "
-                                                  "from a vehicle file or an earlier log"}},
-        required=["boot_id"], extra=True),
+    "stid.Hello": HELLO_SCHEMA,
     "stid.Event": _obj(
         "Something that happened to the link or the run",
         {"event": {**_STR, "description": "connect, disconnect, reconnect, boot, other_board, rejects, "
@@ -109,15 +162,20 @@ SCHEMAS = {
         required=["event", "detail"]),
     "stid.Stats": _obj(
         "Link statistics so far (every second and at the end)",
-        {"bytes": _INT, "frames": _COUNTS,
+        {"bytes": _INT, "frames": {**_COUNTS, "description": "accepted frames by type"},
          "errors": {**_COUNTS, "description": "rejected frames by reason"},
-         "lost_frames": _INT, "restarts": _INT, "samples": _INT, "missing_samples": _INT,
+         "lost_frames": _INT, "restarts": {**_INT, "description": "firmware boots after the first seen"},
+         "samples": _INT, "missing_samples": _INT,
          "mcu_overruns": _INT,
          "mcu_missed": {**_INT, "description": "timer periods the car could not sample (its STATUS `missed`)"},
          "hello_seen": {"type": "boolean"},
          "gaps": {"type": "array", "items": _obj("an unplug", {
-             "from_s": {**_NUM, "description": "host time [s since 1970]"}, "to_s": _NUM, "seconds": _NUM})}},
-        extra=True),
+             "from_s": {**_NUM, "description": "host time [s since 1970]"}, "to_s": _NUM, "seconds": _NUM})},
+         "car_restarts": {"type": "array", "items": _obj(
+             "a restart of the car (watchdog, brown-out, reset button): each boot after the first",
+             {"boot": {**_STR, "description": "the new boot's id"},
+              "reset_cause": {**_STR_OR_NULL, "description": "from its HELLO (null: none came)"},
+              "gap_s": {**_NUM_OR_NULL, "description": "seconds without samples across the restart"}})}}),
 }
 TOPICS = {
     "samples": ("/stid/samples", "stid.Sample"),
@@ -214,6 +272,8 @@ class McapLog:
             self._write_group(key)
 
     def json(self, key: str, doc: dict, log_ns: int) -> None:
+        if key == "hello":
+            doc = hello_message(doc)
         self._add(key, json.dumps(doc, separators=(",", ":")).encode(), log_ns)
 
     def sample_messages(self, lines: list[bytes], log_ns) -> None:

@@ -146,6 +146,10 @@ def read_log(path) -> LogData:
         elif topic in _JSON_TOPICS:
             doc = _json_doc(m.data)
             if doc is not None:
+                if topic == "/stid/hello" and isinstance(doc.get("unknown"), dict):
+                    # keys the writer did not know (mcap_log.hello_message): top-level ones as sent
+                    extra = doc.pop("unknown")
+                    doc.update({k: v for k, v in extra.items() if "." not in k and k not in doc})
                 getattr(data, _JSON_TOPICS[topic]).append((m.log_time, doc))
         elif topic == STATS_TOPIC:
             data.stats = _json_doc(m.data) or data.stats

@@ -29,6 +29,9 @@ def repair(src, dst, hello_from=None) -> dict:
     if holds_a_log(dst):
         raise LogReadError(f"{dst} exists and is a recorded run: repair never replaces one; give another -o "
                            "path (or remove that file first)")
+    if dst.exists():
+        raise LogReadError(f"{dst} exists: repair does not replace a file unasked; give another -o path (or "
+                           "remove that file first)")
     sc = scan_log(src)
     if not sc.messages:
         raise LogReadError(f"{src} holds no intact message (nothing to repair): "

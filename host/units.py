@@ -20,6 +20,9 @@ GYRO_ZERO_V = 1.65
 GYRO_V_PER_DPS = 3.3e-3
 
 
+V_DRIVING = 1.0  # m/s: slower than this the single track is not fitted (stid.fit.dataset.V_MOVING)
+
+
 def counts_to_volts(counts, hello: dict):
     adc = hello.get("adc", {})
     c = np.asarray(counts, dtype=float)
@@ -77,7 +80,8 @@ def pulses_total(wheel_count) -> np.ndarray:
 
 def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int, radius: float,
                 mod: int = 1 << 30, centred: bool = False):
-    """Wheel ground speed [m/s] from hall pulse counts and the time of the latest pulse.
+    """Wheel ground speed [m/s] from hall pulse counts and the time of the latest pulse;
+    NaN where the samples cannot tell it.
 
     ``t_mcu_us`` is the unwrapped sample time, ``t_raw_us`` the same time as sent
     (mod 2^30); the edge time is unwrapped against it. Between two edges the speed
@@ -88,16 +92,29 @@ def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int
 
     The count is 16 bits and only counts up; see ``pulses_total`` for a count that
     goes back.
+
+    The first sample of a stretch carries the latest edge before it (its time and the
+    count), so the first interval ends at the stretch's first new edge. Before that the
+    speed is unknown (NaN) when an edge came recently (within one pulse at ``V_DRIVING``:
+    the wheel may be turning at any speed, e.g. after a burst of lost frames at 4 m/s);
+    a wheel with no edge for longer is taken as standing (0), the convention the
+    stand-still detection relies on.
     """
     t = np.asarray(t_mcu_us, dtype=np.int64)
+    count = np.asarray(wheel_count, dtype=np.int64)
     age = (np.asarray(t_raw_us, dtype=np.int64) - np.asarray(wheel_t_us, dtype=np.int64)) % mod
     edge = t - age  # unwrapped time of the latest edge, per sample
     total = pulses_total(wheel_count)
     per_pulse = 2 * math.pi * radius / pulses_per_rev
     new = np.flatnonzero(np.diff(total) > 0) + 1  # samples at which pulses arrived
+    if len(t) and count[0] != 0:  # an edge came before the stretch (at boot the count is 0 and no edge was)
+        new = np.concatenate([[0], new])
+    since = (t - edge) * 1e-6
+    # before the first interval: a recent edge says the wheel turns, at a speed not known yet
+    recent = (since < per_pulse / V_DRIVING) & ((count != 0) | (total > 0))
     v = np.zeros(len(t))
     if len(new) < 2:
-        return v
+        return np.where(recent, np.nan, v)
     dt = np.diff(edge[new]) * 1e-6
     dn = np.diff(total[new])
     seg_v = np.where(dt > 0, dn * per_pulse / np.where(dt > 0, dt, 1), 0.0)
@@ -110,11 +127,10 @@ def wheel_speed(t_mcu_us, t_raw_us, wheel_count, wheel_t_us, pulses_per_rev: int
         # error. Centred: each mean placed at its interval's middle, linear in between.
         mid = 0.5 * (edge[new][:-1] + edge[new][1:]).astype(float)
         v = np.where(seg >= 0, np.interp(t.astype(float), mid, seg_v), 0.0)
-    since = (t - edge) * 1e-6
     period = np.where(v > 0, per_pulse / np.where(v > 0, v, 1), np.inf)
     slowing = since > 2 * period
     v = np.where(slowing, np.minimum(v, per_pulse / np.maximum(since, 1e-6)), v)
-    return v
+    return np.where((seg < 0) & recent, np.nan, v)
 
 
 WHEEL_COLUMNS = {"fl": "w_fl", "fr": "w_fr", "rl": "w_rl", "rr": "w_rr"}

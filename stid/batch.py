@@ -16,6 +16,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from stid.errors import InputError, StidError
+from stid.output_paths import refuse_existing
 
 
 def find_runs(pattern: str) -> list[str]:
@@ -47,7 +48,7 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
         from stid.fit.fitting import fit
 
         res = fit(runs, vehicle, model, method)
-        row.update({"model": res.model, "method": res.method})
+        row.update({"model": res.model, "method": res.method, "converged": bool(res.converged)})
         for n, v, se in zip(res.names, res.values, res.stderr):
             row[n] = float(v)
             row[f"{n}_se"] = float(se)
@@ -63,7 +64,7 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
             from stid.diagnose import diagnose
 
             (d,) = diagnose(runs, vehicle, model)
-            row["missing_effect"] = d.best.effect if d.best else ""
+            row["missing_effect"] = "+".join(d.named)  # (two when a pair is named)
         row["error"] = ""
     except (StidError, HostError, ValueError) as e:
         row["error"] = str(e)
@@ -158,9 +159,10 @@ def drift_plot(rows, out: Path, params=("Cf", "Cr", "Iz")) -> Path | None:
 PARTLY_FAILED = 3  # exit code: some runs fitted, some not (each named, and a row with its error)
 
 
-def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_diagnose) -> int:
+def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_diagnose, overwrite=False) -> int:
     if Path(output).suffix.lower() not in (".csv", ".parquet"):  # before hours of fitting, not after
         raise InputError(f"-o {output}: the table is written as .csv or .parquet; give a name ending in one")
+    refuse_existing([output, Path(output).with_suffix(".drift.png")], "stid batch", overwrite)
     files = find_runs(pattern)
     if not Path(vehicle).exists():
         raise InputError(f"vehicle file {vehicle} does not exist")

@@ -27,6 +27,7 @@ from host.errors import HostError
 from host.mcap_read import read_log
 from stid import segments
 from stid.errors import InputError
+from stid.output_paths import refuse_existing
 from stid.vehicle_file import Vehicle, load_vehicle
 
 G = units.G
@@ -153,12 +154,17 @@ def _replace_table(text: str, name: str, values: dict) -> str:
     return tomlkit.dumps(doc)
 
 
-def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: str | None = None) -> int:
+def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: str | None = None,
+                  overwrite: bool = False) -> int:
+    """Without ``output`` the vehicle file is updated in place (its previous text kept as
+    FILE.bak); ``output``: write there instead, never over an existing file unless ``overwrite``."""
     out = Path(output or vehicle_path)
     if out.is_dir() or not out.absolute().parent.is_dir():  # said first, not after the results
         raise InputError(f"-o {out}: " + ("is a directory; give a file path" if out.is_dir() else
                                          f"the directory {out.absolute().parent} does not exist; create it or "
                                          "give another path"))
+    if output is not None and Path(output).resolve() != Path(vehicle_path).resolve():
+        refuse_existing([out], "stid calibrate -o", overwrite)
     vehicle = load_vehicle(vehicle_path)
     st = standstill_ros(standstill_path, vehicle) if is_ros(standstill_path, vehicle) else \
         standstill(standstill_path, vehicle)

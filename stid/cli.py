@@ -44,7 +44,7 @@ def _cmd_flash(args) -> int:
 def _cmd_export(args) -> int:
     from stid.export import export_csv
 
-    return export_csv(args.run, args.csv, args.vehicle)
+    return export_csv(args.run, args.csv, args.vehicle, overwrite=args.overwrite)
 
 
 def _cmd_fit(args) -> int:
@@ -68,6 +68,10 @@ def _cmd_fit(args) -> int:
             doc["validation"] = {"runs": [r.name for r in held], "fit": {k: round(v, 2) for k, v in judged.fit.items()}}
         doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
         doc["noise_floor_stderr"] = {k: round(v, 3) for k, v in floor_se.items()}
+        # (fit points short of the floor: when not empty, the intervals assume a model that is not right)
+        from stid.analysis.noise_floor import below_floor
+
+        doc["below_floor"] = below_floor(judged, floor, floor_se)
         print(_json(doc))
     else:
         print(res.table())
@@ -133,25 +137,31 @@ def _floor_line(res, floor, se, args) -> str:
 
     known = [o for o in floor if math.isfinite(floor[o])]
     if not known:
-        from stid.present import floor_words
+        from stid.analysis.noise_floor import floor_words
 
         return "  " + floor_words(floor, se)
-    short = {o: floor[o] - res.fit[o] for o in known
-             if floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
+    from stid.analysis.noise_floor import below_floor
+
+    short = below_floor(res, floor, se)
     on = "on the held-out runs" if getattr(args, "validate", None) else "on this data"
     text = (f"  noise floor (what a correct model reaches {on}): "
             + "   ".join(f"{o} {floor[o]:.1f}% +- {se[o]:.2f}" if o in se else f"{o} {floor[o]:.1f}%" for o in known))
     if len(known) < len(floor):
-        from stid.present import floor_words
+        from stid.analysis.noise_floor import floor_words
 
         text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
-    if short:
+    if short and not res.converged:
+        text += ("\n  this fit is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
+                 + ") because the solver did not converge, not because the model must lack something")
+    elif short:
         import shlex
 
         cmd = " ".join(shlex.quote(a) for a in ["stid", "diagnose", *args.runs, "--vehicle", args.vehicle,
                                                   "--model", args.model])
         text += ("\n  this model is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
-                 + "): something is missing. See what: " + cmd)
+                 + "): something is missing, and its intervals hold only if the model were right (a model "
+                 "that misses an effect bends its parameters to make up for it, by more than the intervals "
+                 "show). See what: " + cmd)
     return text
 
 
@@ -231,12 +241,15 @@ def _cmd_compare(args) -> int:
 
 def _cmd_report(args) -> int:
     from stid.progress import Progress
+    from stid.output_paths import check_report_dir
+
+    check_report_dir(args.output, args.overwrite)  # before the imports and the loading: known at once
     from stid.report import write_report
 
     vehicle, runs = _vehicle_and_runs(args)
     with Progress("writing the report") as prog:
         path = write_report(runs, vehicle, args.output, args.model, progress=prog, run_paths=args.runs,
-                            vehicle_path=args.vehicle)
+                            vehicle_path=args.vehicle, overwrite=True)
     print(path)
     return 0
 
@@ -257,8 +270,10 @@ def _cmd_plan(args) -> int:
     if args.params_from:
         from stid.fit.fitting import fit
 
-        params.update(fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time").all_params())
-        params_source = f"a fit to {', '.join(args.params_from)}"
+        fitted = fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time")
+        params.update(fitted.all_params())
+        params_source = f"a fit to {', '.join(args.params_from)}" + (
+            "" if fitted.converged else " that did not converge (its values are where the solver stopped)")
     else:
         params_source = "the model's defaults and the vehicle file's [params]"
     if not args.manoeuvre:
@@ -298,13 +313,13 @@ def _cmd_batch(args) -> int:
     from stid.batch import batch_cli
 
     return batch_cli(args.runs, args.vehicle, args.model, args.method, args.workers, args.scheduler,
-                     args.output, args.diagnose)
+                     args.output, args.diagnose, args.overwrite)
 
 
 def _cmd_calibrate(args) -> int:
     from stid.calibrate import calibrate_cli
 
-    return calibrate_cli(args.standstill, args.vehicle, args.circle or (), args.output)
+    return calibrate_cli(args.standstill, args.vehicle, args.circle or (), args.output, args.overwrite)
 
 
 def _cmd_live(args) -> int:
@@ -398,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run", help="RUN.mcap written by stid-log")
     p.add_argument("--csv", required=True, help="output CSV path")
     p.add_argument("--vehicle", help="vehicle TOML (steering and sensor calibration; default: datasheet values)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing CSV (never a recorded run)")
     p.set_defaults(func=_cmd_export)
 
     p = sub.add_parser("fit", help="fit a model to runs: parameters with uncertainty, fit percent, warnings")
@@ -432,6 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m]")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for report.html")
     p.add_argument("--model", default="bicycle", help="the starting model (default bicycle)")
+    p.add_argument("--overwrite", action="store_true", help="replace a report.html already in DIR")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("plan", help="predict parameter uncertainty for planned manoeuvres (Cramér-Rao bound)")
@@ -473,6 +490,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="local processes (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("-o", "--output", default="stid-batch.csv", help="results table (.csv or .parquet)")
+    p.add_argument("--overwrite", action="store_true", help="replace the table and its drift plot if they exist")
     p.set_defaults(func=_cmd_batch)
 
     p = sub.add_parser("calibrate", help="sensor zeros and mounting from a stand-still run (+ steering from circles)")
@@ -480,6 +498,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--vehicle", required=True, help="vehicle TOML to update ([sensors], [steering])")
     p.add_argument("--circle", action="append", metavar="RUN", help="slow steady circles for the steering calibration")
     p.add_argument("-o", "--output", help="write here instead of updating the vehicle file")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing -o file")
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("repair", help="rewrite a cut-short or damaged log into a complete one (what fails its "

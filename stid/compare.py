@@ -96,23 +96,26 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
 
 def _fit_each(runs, vehicle, models, method, progress, validate, stretches, held) -> list[dict]:
     from stid.analysis.residuals import analyse
+    from stid.fit import nested
     from stid.fit.fitting import fit
     from stid.fit.validate import judge_on
     from stid.models.model import Model
 
-    entries = []
+    entries, done = [], {}
     for name in models:
         if progress:
             progress.step(name)
-        res = fit(runs, vehicle, name, method, stretches=stretches)
+        # a model with effects starts from the bicycle's solution: the row above, when it is there
+        res = fit(runs, vehicle, name, method, stretches=stretches, inner=done.get(nested.BASE))
+        done[res.model] = res
         judged = judge_on(res, Model(name, vehicle), held) if held is not None else res
         ra = analyse(judged.predictions)
         bd = breakdown(judged.predictions)
         entries.append({
             "model": res.model, "method": res.method, "fit": judged.fit, "aic": res.aic, "bic": res.bic,
+            "converged": res.converged, "status": res.status,
             "validated_on": [r.name for r in validate] if validate else None,
-            "params": {n: {"value": float(v), "stderr": float(se), "ci95": [float(lo), float(hi)], "unit": res.units[n]}
-                       for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95)},
+            "params": {n: d for n, d in res.params_json().items() if n in res.names},
             "white": {o: ra.white(o) for o in OUTS},
             "independent": {o: ra.independent(o) for o in OUTS},
             "by_band": bd.by_band, "by_ay": bd.by_ay, "by_run": bd.by_run, "warnings": res.warnings,

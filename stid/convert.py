@@ -57,11 +57,12 @@ def steer_angle(steer_us, vehicle: Vehicle):
 START_LOOKBACK_S = 1.0
 
 
-def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float):
+def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S):
     """Mean yaw rate while standing still, or None when the run never stands still. The last
-    ``START_LOOKBACK_S`` before the wheel sensor first sees motion is left out."""
+    ``lookback_s`` before the speed first shows motion is left out (a hall sensor's: it needs
+    two pulses; a motor controller's speed, as a ROS bag's odometry has it, sees motion at once)."""
     mask = segments.still_mask(vx, fs)
-    back = int(START_LOOKBACK_S * fs)
+    back = int(lookback_s * fs)
     for a, b in segments.runs_of(mask, 1):
         if b < len(mask):  # the car drives off after this stretch
             mask[max(a, b - back):b] = False

@@ -9,6 +9,7 @@ import numpy as np
 
 from stid.errors import InputError
 from stid.load import load_file
+from stid.output_paths import refuse_existing
 from stid.sensor_chain import describe
 from stid.vehicle_file import load_vehicle
 
@@ -31,11 +32,7 @@ def write_csv(run, path) -> None:
     np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.7g")
 
 
-def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None) -> int:
-    vehicle = load_vehicle(vehicle_path) if vehicle_path else None
-    runs = load_file(run_path, vehicle)
-    if not runs:
-        raise InputError(f"{run_path} holds no usable samples")
+def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None, overwrite: bool = False) -> int:
     out = Path(csv_path)
     if not out.resolve().parent.exists():
         raise InputError(f"output directory {out.resolve().parent} does not exist")
@@ -44,9 +41,16 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None) ->
     if holds_a_log(out):
         raise InputError(f"--csv {out} is a recorded run (an MCAP file): export never replaces one; give the CSV "
                          "another name")
+    refuse_existing([out], "stid export", overwrite)  # before the loading: known at once
+    vehicle = load_vehicle(vehicle_path) if vehicle_path else None
+    runs = load_file(run_path, vehicle)
+    if not runs:
+        raise InputError(f"{run_path} holds no usable samples")
+    # a log cut into pieces writes OUT.2.csv, OUT.3.csv, ... beside OUT.csv
+    paths = [out if k == 0 else out.with_name(f"{out.stem}.{k + 1}{out.suffix}") for k in range(len(runs))]
+    refuse_existing(paths[1:], "stid export", overwrite)
     written = []
-    for k, run in enumerate(runs):
-        p = out if k == 0 else out.with_name(f"{out.stem}.{k + 1}{out.suffix}")
+    for run, p in zip(runs, paths):
         write_csv(run, p)
         written.append(p)
         for w in run.meta.get("warnings", []):

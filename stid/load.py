@@ -292,6 +292,17 @@ def _pieces(s):
     return list(zip(cuts[:-1], cuts[1:]))
 
 
+def _filled(v: np.ndarray, t) -> np.ndarray:
+    """``v`` with its NaNs interpolated from the known values around them (held at the ends;
+    zeros when nothing is known): a place holder for rows marked not measured."""
+    bad = np.isnan(v)
+    if not bad.any():
+        return v
+    if bad.all():
+        return np.zeros(len(v))
+    return np.where(bad, np.interp(t, t[~bad], v[~bad]), v)
+
+
 def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     hello = log.hello
     t_us = s["t_mcu_us"].astype(np.int64)
@@ -312,10 +323,10 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     vx = units.wheel_speed(t_us, s["t_us"], s["wheel_count"], s["wheel_t_us"], ppr, vehicle.wheel_radius,
                            int(hello.get("mod", 1 << 30)), centred=True)
     no_pulse = np.isnan(steer)
-    steer = np.where(no_pulse, 0.0, steer)
-    sig = {"steer": steer, "ay": ay, "r": r, "vx": vx, "ax": ax}
-    if not np.all(np.isnan(az)):
-        sig["az"] = az
+    sig = {"steer": steer, "ay": ay, "r": r, "vx": vx}
+    for k, v in (("ax", ax), ("az", az)):
+        if not np.all(np.isnan(v)):  # (a channel the board does not sample is absent, not unknown)
+            sig[k] = v
     wheels = {k: w for k, w in units.wheel_speeds(t_us, s, hello, int(hello.get("mod", 1 << 30)),
                                                    centred=True).items()
               if k in OPTIONAL and not np.all(np.isnan(w))}
@@ -323,6 +334,14 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
         sig.update(wheels)
         # the rear axle is driven and slips; the free-rolling fronts measure the car's speed
         sig["vx"] = 0.5 * (wheels["w_fl"] + wheels["w_fr"]) * vehicle.wheel_radius
+    # A value the samples cannot tell (the speed before the first hall interval of a piece, the
+    # steer before the first pulse or with the receiver off, a channel lost in a record) is
+    # unknown: its row is not a measurement (valid False), left out of every fit and export,
+    # and only holds the grid's place with a value interpolated from its known neighbours.
+    unknown = np.zeros(len(t_us), bool)
+    for v in sig.values():
+        unknown |= np.isnan(v)
+    sig = {k: _filled(v, t_us) for k, v in sig.items()}
     valid = None
     # A hard timer samples within µs of its grid instant; a soft timer (ESP32) runs late, by
     # milliseconds behind a blocking write. A value is where its t_us says, never where the grid is.
@@ -332,18 +351,23 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
         # a grid place no sample is near (a gap) is held and marked not measured
         sig = {k: np.interp(tu, t_us, v) for k, v in sig.items()}
         valid = np.zeros(len(tu), bool)
-        valid[nearest] = True
+        valid[nearest[~unknown]] = True
+    elif unknown.any():
+        valid = ~unknown
     timed = False
     if "steer_t_us" in (s.dtype.names or ()):
         exact, timed = convert.steer_at_servo_times(t_us, s["t_us"], s["steer_us"], s["steer_t_us"], vehicle,
                                                     int(hello.get("mod", 1 << 30)), tu, step)
         if timed:
-            sig["steer"] = np.where(np.isnan(exact), 0.0, exact)
+            no_exact = np.isnan(exact)
+            if no_exact.any():
+                valid = ~no_exact if valid is None else valid & ~no_exact
+            sig["steer"] = _filled(exact, tu)
     t = (tu - tu[0]) * 1e-6
     fs = 1e6 / step
-    run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig["ax"],
+    run = Run(name=name, t=t, steer=sig["steer"], ay=sig["ay"], r=sig["r"], vx=sig["vx"], ax=sig.get("ax"),
               extra={k: v for k, v in sig.items() if k == "az" or k.startswith("w_")},
-              meta={"source": source, "format": "mcap", "hello": hello, "fs": fs,
+              meta={"source": source, "format": "mcap", "hello": hello, "fs": fs, "t0_mcu_s": tu[0] * 1e-6,
                     "sensor_chain": sensor_chain.from_hello(hello, vehicle)},
               valid=valid)
     run.meta["steer_timing"] = "servo pulse edges" if timed else "sample instants"
@@ -362,7 +386,8 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     if filled:
         run.meta["link_lost"] = int(filled)  # (said once for the whole log: _link_losses)
     if no_pulse.mean() > 0.01:
-        run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): steer taken as 0 there")
+        run.warn(f"no steering pulse in {100 * no_pulse.mean():.0f}% of samples (receiver off?): the steer is "
+                 "unknown there, and those samples are left out")
     clip = units.clipped(s["ay"], hello) | units.clipped(s["ax"], hello)
     if clip.any():
         run.warn(f"{int(clip.sum())} accelerometer samples at the ADC limit (clipped)")

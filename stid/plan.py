@@ -202,7 +202,8 @@ def noise_from_runs(runs, vehicle, model_name: str = "bicycle", label: str = "th
         return still, f"the stand-still of {label} (sensor noise only: the model is assumed exact, which " \
                       "predicts too little spread; give a run with steering to include model error)", None
     noise = noise_from_fit(res)
-    source = f"the residuals of a {model_name} fit to {label} (model error + sensor noise"
+    source = f"the residuals of a {model_name} fit to {label} (model error + sensor noise" + (
+        "" if res.converged else "; that fit did not converge, so they also hold the solver's failure")
     follows = {o: 1.0 - float(np.trapezoid(noise[o][1], noise[o][0])) / max(noise["variance"][o], 1e-300)
                for o in ("ay", "r")}
     source += "; the part that follows the steer: {}".format(

@@ -9,6 +9,7 @@ import textwrap
 
 import numpy as np
 
+from stid.analysis.noise_floor import floor_words
 from stid.models.params import unit_suffix
 
 WIDTH = 100
@@ -24,38 +25,19 @@ def _wrap(text: str, indent: str = "  ", first: str | None = None) -> list:
 
 
 def _params_with_intervals(res, owner=None) -> str:
-    ci = dict(zip(res.names, res.ci95))
     out = []
     for n, v in res.params().items():
         if owner is not None and res.owners.get(n) != owner:
             continue
-        lo, hi = ci[n]
-        out.append(f"{n} = {v:.4g} [{lo:.4g}, {hi:.4g}]{unit_suffix(res.units.get(n, ''))}")
+        ci = res.interval_of(n)
+        where = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else f"(no interval: {res.undetermined.get(n, '')})"
+        out.append(f"{n} = {v:.4g} {where}{unit_suffix(res.units.get(n, ''))}")
     return ", ".join(out)
 
 
 def _command(runs, vehicle_path, *rest) -> str:
     parts = ["stid", *rest[:1], *(runs or ["RUN..."]), "--vehicle", vehicle_path or "V.toml", *rest[1:]]
     return " ".join(shlex.quote(str(p)) for p in parts)
-
-
-def floor_words(floor: dict, se: dict | None = None) -> str:
-    """The noise floor per output, or why an output has none (``se``: its standard errors)."""
-    known = [o for o, v in floor.items() if math.isfinite(v)]
-    wide = {o: (se or {})[o] for o in floor if o not in known and math.isfinite((se or {}).get(o, math.nan))}
-    parts = []
-    if known:
-        parts.append("noise floor " + ", ".join(f"{o} {floor[o]:.1f}%" for o in known)
-                     + " (what a correct model reaches here)")
-    if wide:
-        parts.append(("" if parts else "noise floor: ") + ", ".join(wide) + " not determined by this data "
-                     "(standard error " + ", ".join(f"{s:.0f}" for s in wide.values()) + " points): it needs "
-                     "steering across frequencies, such as random steer, not only circles or steps")
-    rest = [o for o in floor if o not in known and o not in wide]
-    if rest:  # (alone, it is the whole floor: no outputs named)
-        parts.append((", ".join(rest) + " " if parts else "noise floor: ") + "not estimated (the stretches are "
-                     "too short for its 1 s predictor in 5 folds; log longer runs)")
-    return "; ".join(parts)
 
 
 def _screened_line(d) -> str:
@@ -68,7 +50,7 @@ def _screened_line(d) -> str:
                 f"{c.effect} ({gain:.1f} points)" if c.screen.get("why") == "capped" else c.effect)
     parts = []
     if groups["capped"]:
-        from stid.diagnose import MAX_FULL_FITS
+        from stid.search.screen import MAX_FULL_FITS  # (compare, which only needs the layout, skips the search)
 
         parts.append(f"ranked below the {MAX_FULL_FITS} best: " + ", ".join(groups["capped"]))
     if groups["small"]:
@@ -83,13 +65,14 @@ def _screened_line(d) -> str:
 def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> str:
     """What to add first, why, what the others are, and the next command."""
     lines = []
+    see_below = False  # a round's verdict points to the 'unexplained' section: it must be there
     for k, d in enumerate(rounds):
-        speeds = sorted({round(p.vx, 1) for p in d.base.predictions})
         head = "" if k == 0 else f"step {k + 1}: "
         n = len(d.base.predictions)
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
-                     f"{floor_words(d.floor, d.floor_se)}   "
-                     f"[{n} stretch{'es' if n != 1 else ''} at {', '.join(f'{v:g}' for v in speeds)} m/s]")
+                     f"{floor_words(d.floor, d.floor_se)}   [{n} stretch{'es' if n != 1 else ''} at {_speeds(d)}]")
+        if not d.base.converged:
+            lines.extend(_wrap(d.base.verdict_line(), first="  "))
         if any(c.skipped or c.result is not None for c in d.candidates):
             lines.append(f"  {'candidate':<22}{'fit ay':>8}{'fit r':>8}   verdict")
         for c in d.candidates:
@@ -98,31 +81,34 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
                 continue
             if c.result is None:  # the screen's verdict, in one line below the table
                 continue
-            verdict = "NAMED: " + c.p_words() if c.significant else c.why_not
+            named = f"NAMED with {c.pair_with}, fitted jointly: " if c.pair_with and c is not d.best else "NAMED: "
+            verdict = named + c.p_words() if c.significant else c.why_not
             lines.extend(_wrap(f"{c.effect:<22}{_pct(c.result.fit['ay']):>8}{_pct(c.result.fit['r']):>8}   "
                                f"{verdict}", indent="  " + " " * 41, first="  "))
         screened = _screened_line(d)
         if screened:
             lines.extend(_wrap(screened, indent="    ", first="  "))
         best = d.best
+        known = [o for o in ("ay", "r") if math.isfinite(d.floor[o])]
         if best is not None:
-            same = [c.effect for c in d.same_symptom]
-            first = f"=> add {best.effect} first"
-            if same:
-                first += f" ({', '.join(same)}: the same symptom, not separate effects)"
-            lines.extend(_wrap(first, first="  "))
-            lines.extend(_wrap(best.explanation, indent="     "))
-            lines.extend(_wrap(f"{best.effect}: {_params_with_intervals(best.result, best.effect)} (95%)",
-                               indent="     "))
-        elif d.base.fit["ay"] >= d.floor["ay"] - 0.5 and d.base.fit["r"] >= d.floor["r"] - 0.5:
-            lines.append("  => nothing is missing that this data can show: the model is at the noise floor")
+            lines.extend(_named_lines(d))
+        elif known and all(d.base.fit[o] >= d.floor[o] - 0.5 for o in known):
+            lines.append("  => nothing is missing that this data can show: the model is at the noise floor"
+                         + ("" if len(known) == 2 else f" of {known[0]} (the other has none)"))
+        elif not known:
+            see_below = True
+            lines.extend(_wrap("=> nothing named, and with no noise floor on this data nothing says how far "
+                               f"{d.model} is from a correct model (see 'unexplained' below)", first="  "))
         else:
-            lines.extend(_wrap("=> no effect of the catalogue explains the remaining error (see 'unexplained' "
-                               "below)", first="  "))
+            see_below = True
+            tried = [c for c in d.candidates if c.pairs is not None]
+            lines.extend(_wrap("=> no effect of the catalogue explains the remaining error"
+                               + "".join(f", alone or paired with {c.effect}" for c in tried[:1])
+                               + " (see 'unexplained' below)", first="  "))
         lines.append("")
     last = rounds[-1]
     u = last.unexplained
-    if u is not None and (u.significant or any(v > 0.5 for v in u.gap.values())):
+    if u is not None and u.where and (see_below or u.significant or any(v > 0.5 for v in u.gap.values())):
         lines.append(f"unexplained after {u.model}" + (" (significant)" if u.significant else "") + ":")
         for w in u.where:
             lines.extend(_wrap("- " + w, indent="    ", first="  "))
@@ -130,13 +116,48 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
             lines.extend(_wrap("an effect the catalogue lacks: write it (docs/writing_an_effect.md), hide it in "
                                "the simulator (stid-sim --effect-file) and see it found", first="  "))
         lines.append("")
-    final = last.model if last.best is None else f"{last.model}+{last.best.effect}"
+    final = last.named_model
     if last.best is not None and not peel:
         nxt = _command(runs, vehicle_path, "diagnose", "--model", final)
         lines.append(f"next: {nxt}")
     else:  # the chain is complete (or nothing was missing): fit it, with intervals
         lines.append(f"next: {_command(runs, vehicle_path, 'fit', '--model', final)}")
     return "\n".join(lines).rstrip()
+
+
+def _speeds(d) -> str:
+    """The speeds of the round's data (a range where a stretch's speed varies within it)."""
+    if d.stretches:
+        from stid.analysis.speeds import stretch_speeds
+
+        return stretch_speeds(d.stretches)
+    return ", ".join(f"{v:g}" for v in sorted({round(p.vx, 1) for p in d.base.predictions})) + " m/s"
+
+
+def _named_lines(d) -> list:
+    """What a round names: the best effect, or the pair it is named in, with why and the numbers."""
+    best = d.best
+    same = [c.effect for c in d.same_symptom]
+    also = f" ({', '.join(same)}: the same symptom, not separate effects)" if same else ""
+    if best.pair_with:
+        pair = best.pairs.named
+        out = _wrap(f"=> add {best.effect} and {best.pair_with} together{also}: {best.effect} alone is bent "
+                    f"({best.evidence_alone.reason}); fitted jointly, {pair.why}", first="  ")
+        partner = next(c for c in d.candidates if c.effect == best.pair_with)
+        for c in (best, partner):
+            out += _wrap(c.explanation, indent="     ")
+        for e in (best.effect, best.pair_with):
+            out += _wrap(f"{e}: {_params_with_intervals(pair.result, e)} (95%, fitted jointly)", indent="     ")
+        return out
+    out = _wrap(f"=> add {best.effect} first{also}", first="  ")
+    out += _wrap(best.explanation, indent="     ")
+    held = best.pairs.holds_with if best.pairs is not None else None
+    if held is not None:
+        out += _wrap(f"{best.effect} alone is bent ({best.evidence_alone.reason}); it holds once {held.partner} "
+                     f"is fitted with it, but {held.partner}'s own parameter does not "
+                     f"({held.partner_evidence.reason}): --peel tests {held.partner} again", indent="     ")
+    out += _wrap(f"{best.effect}: {_params_with_intervals(best.result, best.effect)} (95%)", indent="     ")
+    return out
 
 
 def _which(passed: dict) -> str:
@@ -159,6 +180,10 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
         white, indep = _which(e["white"]), _which(e["independent"])
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
                      f"{e['bic']:12.0f}  {white:<15}  {indep}")
+    for e in entries:
+        if not e.get("converged", True):
+            lines.extend(_wrap(f"{e['model']} did not converge: its row is where the solver stopped "
+                               f"({e['status']})", indent="  ", first=""))
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {})
     if all(math.isfinite(v) for v in fl.values()):
         lines.append(f"{'noise floor':<{w}}{_pct(fl['ay']):>8}{_pct(fl['r']):>8}   (what a correct model reaches; "
@@ -185,7 +210,8 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
 
 def _verdict(entries, runs=None, vehicle_path=None) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
-    best = min(entries, key=lambda e: e["bic"])
+    # a fit that did not converge is no candidate for the best (unless none did)
+    best = min([e for e in entries if e.get("converged", True)] or entries, key=lambda e: e["bic"])
 
     known = [o for o in ("ay", "r") if math.isfinite(fl[o])]
 

@@ -21,20 +21,23 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from stid.analysis.noise_floor import below_floor  # noqa: E402
 from stid.analysis.residuals import analyse  # noqa: E402
-from stid.compare import breakdown  # noqa: E402
 from stid.diagnose import diagnose  # noqa: E402
 from stid.errors import InputError  # noqa: E402
+from stid.output_paths import check_report_dir  # noqa: E402
+from stid.stats import SCORE_FROM_S  # noqa: E402
 from stid.fit.frf import estimate_frf  # noqa: E402
 from stid.fit.steady_fit import fit_steady  # noqa: E402
 from stid.models.model import Model  # noqa: E402
 from stid.present import diagnosis_text  # noqa: E402
 
-COLORS = ("#888888", "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b")
+# the first model amber (grey is the measurement's), the last red, those between in order
+COLORS = ("#e69f00", "#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#17becf", "#8c564b")
 
 
 def _color(k: int, n: int) -> str:
-    """The first model grey, the last red, those between in order."""
+    """The first model amber, the last red, those between in order."""
     if k == 0:
         return COLORS[0]
     if k == n - 1:
@@ -65,11 +68,14 @@ def _png(fig) -> str:
 
 
 def chain_of(rounds) -> list:
-    """(model name, fit result) along the chain bicycle -> +effect -> +effect."""
+    """(model name, fit result) along the chain bicycle -> +effect -> +effect. A pair named in
+    one round is two links: its first effect alone (the fit that was bent), then both."""
     chain = [(rounds[0].model, rounds[0].base)]
     for d in rounds:
         if d.best is not None:
             chain.append((f"{d.model}+{d.best.effect}", d.best.result))
+            if d.best.pair_with:
+                chain.append((d.named_model, d.named_result))
     return chain
 
 
@@ -80,8 +86,9 @@ def error_fall_figure(chain, floor):
     for ax, out, title in zip(axes, ("ay", "r"), ("lateral acceleration ay", "yaw rate r")):
         vals = [res.fit[out] for _, res in chain]
         ax.plot(x, vals, "o-", color=COLORS[1], lw=2)
-        for xi, v in zip(x, vals):
-            ax.annotate(f"{v:.1f}%", (xi, v), textcoords="offset points", xytext=(0, 8), ha="center")
+        for xi, v in zip(x, vals):  # (on a white patch: the floor's line may pass right under the label)
+            ax.annotate(f"{v:.1f}%", (xi, v), textcoords="offset points", xytext=(0, 8), ha="center", zorder=4,
+                        bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.9})
         if np.isfinite(floor[out]):
             ax.axhline(floor[out], color="k", ls="--", lw=1, label=f"noise floor {floor[out]:.1f}%")
             ax.set_title(f"{title} (floor {floor[out]:.1f}%, dashed)")
@@ -106,10 +113,14 @@ def time_figure(chain, window_s=8.0):
     m = (t >= t[0] + 2.0) & (t <= t[0] + 2.0 + window_s)
     for i, (lab, unit) in enumerate((("ay", "m/s^2"), ("r", "rad/s"))):
         ax, axr = axes[2 * i], axes[2 * i + 1]
-        ax.plot(t[m], p0.y[m, i], color="k", lw=1.4, label="measured")
+        # the measurement as a broad band under the models' thin lines: a model that fits runs
+        # inside it, and the band stays visible (drawn as a thin line, a good model hid it)
+        ax.plot(t[m], p0.y[m, i], color="k", lw=4.0, alpha=0.25, solid_capstyle="butt", label="measured",
+                zorder=1)
         for k, (name, res) in enumerate(chain):
             pk = res.predictions[0]
-            ax.plot(t[m], pk.yhat[m, i], color=_color(k, n), lw=1.1, ls="-" if k == n - 1 else "--", label=name)
+            ax.plot(t[m], pk.yhat[m, i], color=_color(k, n), lw=1.1, ls="-" if k == n - 1 else "--", label=name,
+                    zorder=2 + k)
             axr.plot(t[m], (pk.y - pk.yhat)[m, i], color=_color(k, n), lw=0.9)
         ax.set_ylabel(f"{lab} [{unit}]")
         axr.set_ylabel(f"residual [{unit}]")
@@ -184,7 +195,12 @@ def bode_figure(chain, stretches, vehicle):
     return fig
 
 
-def residual_figure(chain):
+def residual_figure(chain, fs_raw: float, sensors: dict | None):
+    """Residual autocorrelation against what a correct model leaves when the sensors' noise is
+    white (that noise through the sensor's filter and the fit's prefilter: never white), and
+    cross-correlation with the steer, each with its 99% band."""
+    from stid.analysis.residuals import coloured_band, noise_autocorrelation
+
     fig, axes = plt.subplots(2, 2, figsize=(10, 6))
     for k, (name, res) in enumerate(chain):
         col = _color(k, len(chain))
@@ -193,50 +209,105 @@ def residual_figure(chain):
         for j, out in enumerate(("ay", "r")):
             axes[0, j].plot(ra.lags_s[L:], ra.auto[out], color=col, label=name)
             axes[1, j].plot(ra.lags_s, ra.cross[out], color=col, label=name)
-            axes[0, j].axhspan(-ra.band, ra.band, color="k", alpha=0.1)
             axes[1, j].axhspan(-ra.cross_band[out], ra.cross_band[out], color=col, alpha=0.12)
             axes[0, j].set_title(f"autocorrelation of the {out} residual")
             axes[1, j].set_title(f"{out} residual vs steer (positive lag: residual after steer)")
+    ra = analyse(chain[-1][1].predictions)
+    L = len(ra.lags_s) // 2
+    for j, out in enumerate(("ay", "r")):
+        rho = noise_autocorrelation(fs_raw, float(ra.lags_s[L + 1] - ra.lags_s[L]), (sensors or {}).get(out) or 0.0,
+                                    max_lag_s=float(ra.lags_s[-1]))[:L + 1]
+        band = coloured_band(rho, ra.n)
+        lags = ra.lags_s[L:]
+        axes[0, j].plot(lags, rho, "k--", lw=1, label="white sensor noise through the sensor filter and prefilter")
+        axes[0, j].fill_between(lags, rho - band, rho + band, color="k", alpha=0.1, lw=0)
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
         ax.set_xlabel("lag [s]")
     for ax in axes[:, 0]:
         ax.set_ylabel("correlation [-]")
-    fig.suptitle("Residual analysis with 99% bands (shaded; cross-correlation bands allow for coloured signals)")
+    fig.suptitle("Residual analysis with 99% bands (shaded): a correct model's residual follows the dashed curve")
     fig.tight_layout(rect=(0, 0, 1, 0.95))  # (room for the title above the panels' own)
     _legend_below(fig, axes)
     return fig
 
 
-def spectrum_figure(chain, stretches):
-    """Residual spectra of the first and last model against the noise floor's (the FIR
-    predictor's cross-validated error): where a model's residual sits above the floor,
-    something the steer explains is still missing there."""
+RESIDUAL_WORDS = (
+    "A correct model does not leave white residuals: the sensor's output filter and the fit's 20 Hz prefilter "
+    "colour them. The dashed curve is that colour (white sensor noise through both), the grey band its 99% band; "
+    "a residual above it at short lags holds colour the measurement chain does not explain (model error, or "
+    "correlated sensor errors such as ADC steps or vibration). The cross-correlation bands allow for the colour "
+    "of both signals.")
+
+
+def residual_spectra(chain, stretches):
+    """(f, {"floor" or model name: {output: PSD}}) of the noise floor's errors and every
+    model's residuals, computed the same way: the same samples (each stretch thinned as the
+    floor's predictor thins it, scored from the same instant), the same rate, one Welch
+    estimate. A PSD's integral is its series' variance, so the floor's total is what a model
+    at the floor leaves; its shape is the predictor's (see SPECTRUM_WORDS)."""
     from scipy import signal  # the report draws; its import time is not a command's
 
     from stid.analysis.noise_floor import floor_errors, floor_rate
 
     fl, _ = floor_errors(stretches)
+    ffs = floor_rate(stretches)
+    q = max(1, int(round(1.0 / (ffs * stretches[0].dt))))
+    nper = int(4 * ffs)
+
+    def psd(parts):
+        x = np.concatenate(parts) if parts else np.zeros(0)
+        if len(x) < nper:
+            return None
+        return signal.welch(x - x.mean(), fs=ffs, nperseg=nper)
+
+    out, f = {}, None
+    if all(fl[o] for o in ("ay", "r")):
+        out["floor"] = {}
+        for o in ("ay", "r"):
+            f, out["floor"][o] = psd(fl[o])
+    for name, res in chain:
+        out[name] = {}
+        for j, o in enumerate(("ay", "r")):
+            parts = []
+            for pr in res.predictions:
+                e = (pr.y - pr.yhat)[::q, j]
+                parts.append(e[pr.keep[::q] & ((pr.t[::q] - pr.t[0]) >= SCORE_FROM_S)])
+            got = psd(parts)
+            if got is not None:
+                f, out[name][o] = got
+    return f, out
+
+
+SPECTRUM_WORDS = (
+    "Every spectrum here is computed the same way, on the same samples: a model at the noise floor leaves the "
+    "floor's total (the area under the black curve), but not necessarily its shape. The floor's predictor follows "
+    "the car by a response of the steer alone; on runs whose speed varies it lies above a correct model in the "
+    "steering band (where the steer has power) and below it elsewhere. Where a model's residual stands clearly "
+    "above the floor, something the steer explains is still missing there.")
+
+
+def spectrum_figure(chain, stretches):
+    """Residual spectra of every model of the chain against the noise floor's predictor
+    error, all from ``residual_spectra``."""
+    f, spectra = residual_spectra(chain, stretches)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    fs = 1.0 / stretches[0].dt
-    nper = int(4 * fs)
     f_max = 15.0
+    band = f <= f_max if f is not None else None
     for j, (ax, out) in enumerate(zip(axes, ("ay", "r"))):
         shown = []  # the values inside the plotted band set the vertical range (the prefilter
         # takes the residual to nothing above 20 Hz, decades below anything of interest)
-        if fl[out]:  # (runs too short for the floor's predictor have none)
-            ffs = floor_rate(stretches)  # the floor's predictor runs on every other sample
-            f, P = signal.welch(np.concatenate(fl[out]), fs=ffs, nperseg=int(4 * ffs))
-            ax.semilogy(f, P, color="k", lw=1.5, label="noise floor (what a correct model leaves)")
-            shown.append(P[f <= f_max])
-        for k, (name, res) in enumerate(chain):
-            col = _color(k, len(chain))
-            e = np.concatenate([(p.y - p.yhat)[p.keep, j] for p in res.predictions])
-            f2, Pe = signal.welch(e - e.mean(), fs=fs, nperseg=nper)
-            ax.semilogy(f2, Pe, color=col, lw=1.2, label=name)
-            shown.append(Pe[f2 <= f_max])
+        if "floor" in spectra:  # (runs too short for the floor's predictor have none)
+            ax.semilogy(f, spectra["floor"][out], color="k", lw=1.5, label="noise floor (its total: what a correct "
+                                                                           "model leaves)")
+            shown.append(spectra["floor"][out][band])
+        for k, (name, _) in enumerate(chain):
+            P = spectra[name].get(out)
+            if P is not None:
+                ax.semilogy(f, P, color=_color(k, len(chain)), lw=1.2, label=name)
+                shown.append(P[band])
         ax.set_xlim(0, f_max)
-        values = np.concatenate(shown)
+        values = np.concatenate(shown) if shown else np.zeros(0)
         values = values[values > 0]
         if len(values):
             ax.set_ylim(0.3 * values.min(), 3.0 * values.max())
@@ -249,20 +320,46 @@ def spectrum_figure(chain, stretches):
     return fig
 
 
+def ay_bins(predictions, edges=(0.0, 2.0, 4.0, 6.0, np.inf)) -> list:
+    """Per |ay| bin of the measured ay: (label, samples, residual rms [m/s^2], the residual's
+    mean in the direction of ay [m/s^2]). A friction limit the model lacks makes it overshoot
+    where |ay| is large: a systematic residual against ay there (negative). A lag grows the rms
+    with the amplitude too, but the model then falls short at the peaks (positive)."""
+    y = np.concatenate([p.y[p.keep, 0] for p in predictions])
+    e = np.concatenate([(p.y - p.yhat)[p.keep, 0] for p in predictions])
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (np.abs(y) >= lo) & (np.abs(y) < hi)
+        if m.sum() < 50:
+            continue
+        label = f"{lo:g}-{hi:g}" if np.isfinite(hi) else f"> {lo:g}"
+        out.append((label, int(m.sum()), float(np.sqrt(np.mean(e[m] ** 2))), float(np.mean(e[m] * np.sign(y[m])))))
+    return out
+
+
 def by_ay_figure(chain):
-    fig, ax = plt.subplots(figsize=(8, 3.8))
-    bds = [breakdown(res.predictions) for _, res in chain]
-    bins = list(bds[0].by_ay)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    rows = [ay_bins(res.predictions) for _, res in chain]
+    bins = [r[0] for r in rows[0]]
     x = np.arange(len(bins))
     w = 0.8 / len(chain)
-    for k, ((name, _), bd) in enumerate(zip(chain, bds)):
-        ax.bar(x - 0.4 + (k + 0.5) * w, [bd.by_ay[b]["ay"] for b in bins], w, color=_color(k, len(chain)), label=name)
-    ax.set_xticks(x, bins, rotation=10)
-    ax.set_ylabel("ay fit in the bin [%]")
-    ax.set_title("Where the error lives: linear range vs the friction limit")
-    ax.grid(alpha=0.3)
-    _legend_below(fig, ax)
-    fig.subplots_adjust(bottom=0.3)
+    for k, ((name, _), rs) in enumerate(zip(chain, rows)):
+        col = _color(k, len(chain))
+        got = {r[0]: r for r in rs}
+        axes[0].bar(x - 0.4 + (k + 0.5) * w, [got[b][2] if b in got else np.nan for b in bins], w, color=col,
+                    label=name)
+        axes[1].bar(x - 0.4 + (k + 0.5) * w, [got[b][3] if b in got else np.nan for b in bins], w, color=col)
+    for ax in axes:
+        ax.set_xticks(x, [f"|ay| {b} m/s^2" for b in bins], rotation=10, fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("ay residual rms [m/s^2]")
+    axes[0].set_title("how large the error is, per |ay|")
+    axes[1].axhline(0, color="k", lw=0.6)
+    axes[1].set_ylabel("mean of residual x sign(ay) [m/s^2]")
+    axes[1].set_title("its systematic part (< 0: overshoots, as at a friction limit)")
+    fig.suptitle("Where the error lives across |ay|: a friction limit shows as a systematic overshoot at large |ay|")
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    _legend_below(fig, axes)
     return fig
 
 
@@ -333,28 +430,34 @@ def steady_figure(runs, vehicle):
     return fig, res
 
 
+def _figure(title: str, fig, words: str = "") -> str:
+    """A figure with its heading (and what it shows, in words), kept together in print."""
+    return (f"<figure><h2>{html.escape(title)}</h2><img src='data:image/png;base64,{_png(fig)}'>"
+            + (f"<figcaption class='note'>{html.escape(words)}</figcaption>" if words else "") + "</figure>")
+
+
 def _params_table(res) -> str:
     rows = []
     for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95):
-        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>[{lo:.5g}, {hi:.5g}]</td>"
+        ci = (f"[{lo:.5g}, {hi:.5g}]" if res.interval_of(n)
+              else f"no interval ({html.escape(res.undetermined.get(n, ''))})")
+        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>{ci}</td>"
                     f"<td>{html.escape(res.units[n])}</td><td>{html.escape(res.owners.get(n, ''))}</td></tr>")
     for n, (v, unit, why) in res.fixed.items():
         rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>fixed</td><td></td><td>{html.escape(unit)}</td>"
                     f"<td>{html.escape(why)}</td></tr>")
     return ("<table><tr><th>parameter</th><th>value</th><th>std. error</th><th>95% interval</th><th>unit</th>"
             "<th>from</th></tr>" + "".join(rows) + "</table>"
-            + (f"<p class='note'>{html.escape(res.interval)}</p>" if res.interval else ""))
+            + (f"<p class='warn'>{html.escape(res.verdict_line())}</p>" if res.verdict_line() else "")
+            + (f"<p class='note'>{html.escape(res.interval)}</p>" if res.interval and res.converged else ""))
 
 
 def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=None, rounds=None,
-                 run_paths=None, vehicle_path=None) -> Path:
+                 run_paths=None, vehicle_path=None, overwrite: bool = False) -> Path:
     """The page for ``runs``; ``rounds``: a ``diagnose(..., peel=True)`` already made of them.
     ``run_paths``, ``vehicle_path``: the files as the user named them, for the command the
     page says to run next (default: the runs' names and the vehicle file's path)."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"-o {out_dir} is a file: the report is a directory (report.html and its figures); "
-                         "give a directory path")
+    out_dir = check_report_dir(out_dir, overwrite)
     try:  # before the diagnosis: a directory that cannot be made is known in a millisecond
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -366,42 +469,66 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
     floor = rounds[0].floor
     if progress:
         progress.step("drawing figures")
-    figs = [("The logged runs", overview_figure(runs)),
-            ("The error falls", error_fall_figure(chain, floor)),
-            ("Measured vs model in time", time_figure(chain)),
-            ("Measured vs model in frequency", bode_figure(chain, stretches, vehicle)),
-            ("Where the error lives", by_ay_figure(chain)),
-            ("Residual analysis", residual_figure(chain)),
-            ("Residual spectra against the noise floor", spectrum_figure(chain, stretches))]
+    figs = [("Measured vs model in time", time_figure(chain), ""),
+            ("Measured vs model in frequency", bode_figure(chain, stretches, vehicle), ""),
+            ("Where the error lives across |ay|", by_ay_figure(chain), ""),
+            ("Residual analysis", residual_figure(chain, runs[0].fs, stretches[0].sensors), RESIDUAL_WORDS),
+            ("Residual spectra against the noise floor", spectrum_figure(chain, stretches), SPECTRUM_WORDS)]
     u = rounds[-1].unexplained
     if u is not None and u.by_band:
-        figs.append((f"Where {u.model} still fails", unexplained_figure(u)))
+        figs.append((f"Where {u.model} still fails", unexplained_figure(u), ""))
     sfig, sres = steady_figure(runs, vehicle)
     if sfig is not None:
-        figs.insert(4, ("Steady-state cornering", sfig))
+        figs.insert(2, ("Steady-state cornering", sfig, ""))
+    found = [name.split("+")[-1] for name, _ in chain[1:]]
+    last_name, last = chain[-1]
+    story = (f"The bicycle model alone fits ay {chain[0][1].fit['ay']:.1f}%, r {chain[0][1].fit['r']:.1f}%. "
+             + (f"The diagnosis found {', '.join(found)}; with {'it' if len(found) == 1 else 'them'} added "
+                f"({last_name}) the fit is ay {last.fit['ay']:.1f}%, r {last.fit['r']:.1f}%. " if found else
+                "The diagnosis names no missing effect. ")
+             + "The noise floor (what a correct model reaches on this data) is "
+             + ", ".join(f"{o} {floor[o]:.1f}%" if np.isfinite(floor[o]) else f"{o} not determined" for o in ("ay", "r"))
+             + ". The whole diagnosis, in words, is at the end of the page.")
     parts = [f"<h1>stid report: {html.escape(vehicle.name)}</h1>",
              f"<p>{len(runs)} run(s): {html.escape(', '.join(r.name for r in runs))}. "
              f"Generated {time.strftime('%Y-%m-%d %H:%M')}. Units SI, ISO 8855 axes (x forward, y left, z up), "
              "cornering stiffness per axle in N/rad.</p>",
-             "<h2>Diagnosis</h2><pre>" + html.escape(diagnosis_text(
-                 rounds, run_paths or [r.name for r in runs], vehicle_path or vehicle.path or vehicle.name,
-                 peel=True)) + "</pre>",
+             f"<p class='story'>{html.escape(story)}</p>",
+             _figure("The error falls", error_fall_figure(chain, floor)),
+             _figure("The logged runs", overview_figure(runs)),
              "<h2>Along the chain</h2>"]
-    for name, res in chain:
-        parts.append(f"<h3>{html.escape(name)}: fit ay {res.fit['ay']:.1f}%, r {res.fit['r']:.1f}%</h3>")
-        parts.append(_params_table(res))
+    for k, (name, res) in enumerate(chain):
+        parts.append(f"<section class='keep'><h3>{html.escape(name)}: fit ay {res.fit['ay']:.1f}%, "
+                     f"r {res.fit['r']:.1f}%</h3>" + _params_table(res))
+        short = below_floor(res, floor, rounds[0].floor_se)
+        if short:
+            parts.append("<p class='warn'>" + html.escape(
+                f"{name} is {', '.join(f'{o} {g:.1f}' for o, g in short.items())} points below the noise floor: "
+                "its intervals hold only if it were right (a model that misses an effect bends its parameters "
+                "to make up for it, by more than the intervals show)"
+                + ("; the next model's are the ones to read" if k < len(chain) - 1 else
+                   "; where it still fails is shown below"))
+                + "</p>")
         for w in res.warnings:
             parts.append(f"<p class='warn'>warning: {html.escape(w)}</p>")
+        parts.append("</section>")
     if sres is not None:
-        parts.append("<h3>steady state</h3>" + _params_table(sres))
+        parts.append("<section class='keep'><h3>steady state</h3>" + _params_table(sres) + "</section>")
         for w in sres.warnings:
             parts.append(f"<p class='warn'>note: {html.escape(w)}</p>")
-    for title, fig in figs:
-        parts.append(f"<h2>{html.escape(title)}</h2><img src='data:image/png;base64,{_png(fig)}'>")
+    for title, fig, words in figs:
+        parts.append(_figure(title, fig, words))
+    parts.append("<h2>The diagnosis in words</h2><pre>" + html.escape(diagnosis_text(
+        rounds, run_paths or [r.name for r in runs], vehicle_path or vehicle.path or vehicle.name,
+        peel=True)) + "</pre>")
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
              "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 8px;"
              "text-align:right}pre{background:#f6f6f6;padding:1em;white-space:pre-wrap;overflow-wrap:anywhere;"
-             "font-size:12px}img{max-width:100%}.warn{color:#a60}.note{color:#555;font-size:90%}")
+             "font-size:12px}img{max-width:100%}.warn{color:#a60}.note{color:#555;font-size:90%}"
+             ".story{font-size:110%;line-height:1.45}"
+             # print: a heading stays with what it heads, a figure or a table is not cut in two
+             "h1,h2,h3{break-after:avoid;page-break-after:avoid}"
+             "figure,.keep,img,table{break-inside:avoid;page-break-inside:avoid}figure{margin:0}")
     page = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>stid report</title><style>{style}</style>"
             f"</head><body>{''.join(parts)}</body></html>")
     path = out_dir / "report.html"

@@ -21,9 +21,9 @@ TRUTH = CarParams()
 def sim_run(root: Path, manoeuvre: str = "random_steer", effects=(), seed: int = 1, speed: float = 4.0,
             duration: float = 40.0, steer_amp: float = 0.04, bandwidth: float = 4.0, csv: bool = False,
             beta_sensor: float | None = None, board: str = "pico", speed_end: float | None = None,
-            car: CarParams | None = None) -> Path:
+            car: CarParams | None = None, rate_hz: int = 500) -> Path:
     key = (manoeuvre, tuple(sorted(effects)), seed, speed, duration, steer_amp, bandwidth, csv, beta_sensor,
-           board, speed_end, repr(car))
+           board, speed_end, repr(car), rate_hz)
     if key in _CACHE:
         return _CACHE[key]
     name = f"{manoeuvre}_{'+'.join(sorted(effects)) or 'clean'}_{seed}_{speed}_{abs(hash(key)) % 10**8}"
@@ -31,7 +31,7 @@ def sim_run(root: Path, manoeuvre: str = "random_steer", effects=(), seed: int =
     csv_path = root / f"{name}.csv" if csv else None
     cfg = SimConfig(plan=Plan(name=manoeuvre, duration=duration, speed=speed, steer_amp=steer_amp,
                               bandwidth=bandwidth, speed_end=speed_end), effects=tuple(effects), seed=seed,
-                    board=board, beta_sensor=beta_sensor, car=car or CarParams())
+                    board=board, beta_sensor=beta_sensor, car=car or CarParams(), rate_hz=rate_hz)
     record(cfg, mcap, csv_path=csv_path, truth_path=root / f"{name}.truth.json")
     out = csv_path if csv else mcap
     _CACHE[key] = out

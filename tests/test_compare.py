@@ -100,7 +100,8 @@ def test_a_floor_the_data_do_not_determine_is_not_given_and_nothing_claims_to_re
     import numpy as np
 
     from stid.analysis.noise_floor import UNDETERMINED_SE, _floor_from
-    from stid.present import _verdict, floor_words
+    from stid.analysis.noise_floor import floor_words
+    from stid.present import _verdict
 
     rng = np.random.default_rng(0)
     y = rng.standard_normal(5000)

@@ -35,14 +35,14 @@ def test_hidden_effect_is_named_first_and_the_error_falls_to_the_noise_floor(sim
     assert len(rounds) == 2 and rounds[1].best is None
 
 
-def test_two_hidden_effects_are_peeled_one_after_the_other(simdir, rc_vehicle):
+def test_two_hidden_effects_are_both_named(simdir, rc_vehicle):
     effects = ("actuator_lag", "accel_offset")
     runs = load_runs(random_steer_pair(simdir, effects), rc_vehicle)
     rounds = diagnose(runs, rc_vehicle, "bicycle", peel=True)
-    found = [d.best.effect for d in rounds if d.best is not None]
-    assert sorted(found) == sorted(effects), [(d.model, d.best and d.best.effect) for d in rounds]
+    found = [e for d in rounds for e in d.named]  # one after the other, or as a pair in one round
+    assert sorted(found) == sorted(effects), [(d.model, d.named) for d in rounds]
     assert rounds[-1].best is None
-    final = rounds[-2].best.result
+    final = rounds[-2].named_result
     assert max(rel_err(final, BASE).values()) < 0.05
 
 
@@ -89,15 +89,15 @@ def test_candidates_are_not_separable_only_when_chance_could_give_their_likeliho
     the winner's points (a servo lag on a hidden sensor delay)."""
     from scipy.special import chdtri
 
-    from stid.diagnose import Candidate, _indistinct
+    from stid.search.candidate import Candidate, indistinct
 
     level = 0.01 / 9
     crit = chdtri(1, level)
     top = Candidate("sensor_delay", lr=7000.0, level=level, gain={"ay": 31.0, "r": 10.0})
     close = Candidate("actuator_lag", lr=7000.0 - 0.5 * crit, level=level, gain={"ay": 5.0, "r": 1.0})
     far = Candidate("actuator_lag", lr=7000.0 - 4964.0, level=level, gain={"ay": 25.8, "r": 8.3})
-    assert _indistinct(top, close)
-    assert not _indistinct(top, far)
+    assert indistinct(top, close)
+    assert not indistinct(top, far)
 
 
 def test_servo_lag_at_two_speeds_is_named_without_doubt(simdir, rc_vehicle):
@@ -160,12 +160,12 @@ def test_one_missing_effect_gives_one_name_and_the_rest_are_the_same_symptom(sim
     assert lo < TRUTH.tau_steer < hi or abs(d.best.result.value("tau_steer") / TRUTH.tau_steer - 1) < 0.05
 
 
-def test_two_missing_effects_in_one_step_name_the_first_and_fit_each_model_per_speed_once(simdir, rc_vehicle,
-                                                                                        monkeypatch):
+def test_two_missing_effects_in_one_step_are_named_as_a_pair_and_each_model_is_fitted_per_speed_once(
+        simdir, rc_vehicle, monkeypatch):
     """Single step, servo lag and accelerometer offset hidden: the lag's value moves with speed
-    until the offset is fitted with it, and then holds, so the lag is named. The model with the
-    lag stays short of the floor, so `unexplained` shows its per-speed fits: the ones the
-    evidence check made (same model, data and start), not made again; so are the noise
+    until the offset is fitted with it, and then both hold, so the pair is named in one round.
+    Each model is refitted per speed once: the joint model's per-speed fits serve the evidence
+    of both its effects, and `unexplained` reads them instead of fitting again; so are the noise
     floor's errors."""
     import stid.analysis.evidence as evidence
     import stid.analysis.noise_floor as noise_floor
@@ -178,15 +178,17 @@ def test_two_missing_effects_in_one_step_name_the_first_and_fit_each_model_per_s
     runs = load_runs(random_steer_pair(simdir, ("actuator_lag", "accel_offset")), rc_vehicle)
     import stid.diagnose as diagnosis
 
-    started = []  # the rescue's start, ahead in a worker (the lag alone stays short of the floor)
-    ahead = diagnosis._ahead_of_the_rescue
-    monkeypatch.setattr(diagnosis, "_ahead_of_the_rescue", lambda *a: started.append(ahead(*a)) or started[-1])
+    started = []  # the pair search's start, ahead in a worker (the lag alone stays short of the floor)
+    ahead = diagnosis.start_ahead
+    monkeypatch.setattr(diagnosis, "start_ahead", lambda *a: started.append(ahead(*a)) or started[-1])
     (d,) = diagnose(runs, rc_vehicle, "bicycle")
     assert d.best is not None and d.best.effect == "actuator_lag"
     assert "holds once accel_offset is fitted with it" in d.best.evidence.reason, d.best.evidence.reason
+    assert d.named == ["actuator_lag", "accel_offset"], [(c.effect, c.why_not) for c in d.candidates]
     assert [f is not None for f in started] == [workers.WORKERS > 1]
-    assert min(d.unexplained.gap.values()) > 1 and d.unexplained.by_speed
-    assert sorted(fitted) == sorted(set(fitted)) and "bicycle+actuator_lag" in fitted, fitted
+    assert d.unexplained.model == "bicycle+actuator_lag+accel_offset" and not d.unexplained.significant
+    assert sorted(fitted) == sorted(set(fitted)) == ["bicycle+actuator_lag", "bicycle+actuator_lag+accel_offset"], \
+        fitted
     # the noise floor's errors, which unexplained compares the residual with band by band, are
     # the ones the worker estimated the floor from (here, only without workers)
     assert len(floors) == (0 if workers.WORKERS > 1 else 1), floors
@@ -268,7 +270,8 @@ def test_the_screen_passes_a_servo_lag_written_from_physics_and_drops_what_is_ab
     the lag, and the pure delay that mimics it, must pass to the full fit; a yaw moment from
     a locked differential and sensor offsets, absent from the data, must not."""
     from stid.analysis.residuals import analyse
-    from stid.diagnose import Candidate, screen_candidates
+    from stid.search.candidate import Candidate
+    from stid.search.screen import screen_candidates
     from stid.fit.fitting import fit
 
     stretches = _servo_lag_from_physics()
@@ -292,40 +295,45 @@ def test_the_second_effect_is_tried_first_once_the_first_is_added(rc_vehicle):
     added (the screen's step), the offset comes first. Data written from physics: a 40 ms lag
     and an accelerometer 8 cm ahead of the CG."""
     from stid.analysis.residuals import analyse
-    from stid.diagnose import Candidate, _rank_partners
     from stid.fit.fitting import fit
+    from stid.search.candidate import Candidate
+    from stid.search.pairs import sift_partners
 
     stretches = _servo_lag_from_physics(x_acc=0.08)
     lag = fit((), rc_vehicle, "bicycle+actuator_lag", "time", stretches=stretches)
     ra = analyse(lag.predictions)
-    top = Candidate("actuator_lag", result=lag)
+    top = Candidate("actuator_lag", result=lag, level=0.01 / 8)
     others = [Candidate(e) for e in ("sensor_delay", "tyre_relaxation", "body_roll", "accel_offset")]
-    ranked = _rank_partners("bicycle", top, others, rc_vehicle, stretches, ra.n / max(ra.tau_int.values()))
-    assert [c.effect for c in ranked][0] == "accel_offset", [c.effect for c in ranked]
-    assert sorted(c.effect for c in ranked) == sorted(c.effect for c in others)
+    steps, kept = sift_partners("bicycle", top, others, rc_vehicle, stretches, ra.n / max(ra.tau_int.values()))
+    assert kept[0] == "accel_offset", [(c.effect, c.lr) for c in steps]
+    assert sorted(c.effect for c in steps) == sorted(c.effect for c in others)
 
 
-def test_the_rescue_started_ahead_is_the_rescue_done_in_order(rc_vehicle):
-    """The rescue's first step may run in a worker beside the evidence check
-    (_ahead_of_the_rescue): the partners it ranks and the joint fit it makes must be the ones
-    the rescue makes itself (only the others' effects and parameters travel to the worker)."""
+def test_the_pair_search_started_ahead_is_the_search_done_in_order(rc_vehicle):
+    """The pair search's first step may run in a worker beside the evidence check
+    (pairs.start_ahead): the partners it sifts and the joint fit it makes must be the ones the
+    search makes itself (only the others' effects and parameters travel to the worker)."""
     from stid.analysis.residuals import analyse
-    from stid.diagnose import Candidate, _alone, _fit_joint, _joint_jobs, _rank_partners, _rescue_start
     from stid.fit.fitting import fit
+    from stid.search.candidate import Candidate
+    from stid.search.candidate_fit import fit_candidate
+    from stid.search.pairs import _alone, joint_jobs, pair_start, sift_partners
 
     stretches = _servo_lag_from_physics(x_acc=0.08)
     lag = fit((), rc_vehicle, "bicycle+actuator_lag", "time", stretches=stretches)
     n_eff = (lambda ra: ra.n / max(ra.tau_int.values()))(analyse(lag.predictions))
-    top = Candidate("actuator_lag", result=lag)
+    top = Candidate("actuator_lag", result=lag, level=0.01 / 8)
     delay = fit((), rc_vehicle, "bicycle+sensor_delay", "time", stretches=stretches)
     others = [Candidate("sensor_delay", result=delay), Candidate("accel_offset", start={"x_acc": 0.3})]
-    order, first = _rescue_start(("bicycle", top, [Candidate(o.effect) for o in others], _alone(others),
-                                  rc_vehicle, stretches, n_eff))
-    ranked = _rank_partners("bicycle", top, others, rc_vehicle, stretches, n_eff)
-    assert order == [o.effect for o in ranked] == ["accel_offset", "sensor_delay"]
-    (job,) = _joint_jobs("bicycle", top, ranked[:1], _alone(others), rc_vehicle, stretches)
-    assert job[3]["tau_steer"] == lag.value("tau_steer") and "x_acc" not in job[3]  # not the screen's start
-    here = _fit_joint(job)
+    steps, kept, first = pair_start(("bicycle", top, [Candidate(o.effect) for o in others], _alone(others),
+                                     rc_vehicle, stretches, n_eff))
+    here_steps, here_kept = sift_partners("bicycle", top, others, rc_vehicle, stretches, n_eff)
+    assert kept == here_kept and kept[0] == "accel_offset"
+    assert [(c.effect, c.lr) for c in steps] == [(c.effect, c.lr) for c in here_steps]
+    (job,) = joint_jobs("bicycle", top, [c for c in here_steps if c.effect == kept[0]], _alone(others),
+                        rc_vehicle, stretches)
+    assert job[4]["tau_steer"] == lag.value("tau_steer")  # from the lag's own fit, not the base's
+    here = fit_candidate(job)
     assert first.names == here.names and list(first.values) == list(here.values)
 
 
@@ -334,12 +342,14 @@ def test_the_screen_shared_between_workers_steps_as_one_process_does(rc_vehicle)
     candidate's step must be the one a single process computes, number for number."""
     from stid import workers
     from stid.analysis.residuals import analyse
-    from stid.diagnose import Candidate, _shares, linearised_steps, worker_pool
+    from stid.search.candidate import Candidate
+    from stid.search.pool import shares, worker_pool
+    from stid.search.screen import linearised_steps
     from stid.fit.fitting import fit
 
     # the costliest first, each to the share with least so far; each share in the items' order
-    assert _shares(list("abcde"), 2, cost=lambda c: {"a": 3}.get(c, 1)) == [["a", "e"], ["b", "c", "d"]]
-    assert _shares(["a"], 2, cost=len) == [["a"]]
+    assert shares(list("abcde"), 2, cost=lambda c: {"a": 3}.get(c, 1)) == [["a", "e"], ["b", "c", "d"]]
+    assert shares(["a"], 2, cost=len) == [["a"]]
     stretches = _servo_lag_from_physics()
     base = fit((), rc_vehicle, "bicycle", "time", stretches=stretches)
     n_eff = (lambda ra: ra.n / max(ra.tau_int.values()))(analyse(base.predictions))
@@ -359,7 +369,7 @@ def test_the_screen_shared_between_workers_steps_as_one_process_does(rc_vehicle)
 def test_jobs_read_in_order_are_started_one_window_ahead():
     """The rescue's joint fits are read in order and usually only the first is needed: no more
     than a window of them may occupy the workers, or the next step waits behind unneeded fits."""
-    from stid.diagnose import _Ahead
+    from stid.search.pool import Ahead
 
     class Pool:
         def __init__(self):
@@ -375,7 +385,7 @@ def test_jobs_read_in_order_are_started_one_window_ahead():
             return f
 
     pool = Pool()
-    ahead = _Ahead(pool, lambda j: 10 * j, [0, 1, 2, 3, 4], window=2)
+    ahead = Ahead(pool, lambda j: 10 * j, [0, 1, 2, 3, 4], window=2)
     assert pool.submitted == [0, 1]
     assert ahead.result(0) == 0 and pool.submitted == [0, 1]
     assert ahead.result(1) == 10 and pool.submitted == [0, 1, 2]

@@ -55,14 +55,14 @@ def counts_for(ay: float, r: float) -> tuple[int, int]:
 
 
 def circle_stream(seconds: float, hello_every_s: float | None = 1.0, uid="e66038b713254a2f",
-                  version: int = 2, batch: int = 10) -> bytes:
+                  version: int = 2, batch: int = 10, boot_id: str = "0badcafe") -> bytes:
     """Protocol frames of a car on a circle: SAMPLES (v2, 26-byte records) + HELLO."""
     ay_c, r_c = counts_for(V * V / RADIUS, V / RADIUS)
     zero_c, _ = counts_for(0.0, 0.0)
     n = int(seconds * RATE)
     out = bytearray()
     seq = 0
-    doc = json.dumps(hello_doc(uid), separators=(",", ":")).encode()
+    doc = json.dumps(hello_doc(uid, boot_id), separators=(",", ":")).encode()
     next_hello = 0.0
     for i0 in range(0, n, batch):
         t_s = i0 / RATE

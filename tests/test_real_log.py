@@ -34,12 +34,6 @@ CATALOGUE_EFFECTS = ("tyre_relaxation", "actuator_lag", "accel_offset", "body_ro
                      "sensor_bias", "steering_nonlinearity", "locked_diff", "sensor_delay", "steer_offset",
                      "gyro_scale")
 
-WAITS_FOR_SOLVER_HONESTY = ("issue 21 point 1 / 'Solvers that say when they fail': converged, status, at_bound "
-                            "in --json and a line in the text; a contained model starts from its base")
-WAITS_FOR_NULL_INTERVALS = ("issue 21 point 1 / 'Solvers that say when they fail': no zero-width interval, "
-                            "null for a parameter the data do not determine")
-WAITS_FOR_INTERVALS = ("issue 21 point 4 / 'Intervals that hold the truth': a model error the data show widens "
-                       "the interval or is said")
 WAITS_FOR_BIAS_KINEMATICS = ("issue 21 point 2 / 'steer_offset and gyro_scale': a named sensor_bias must agree "
                              "with the kinematics the data carry")
 WAITS_FOR_WORDS = ("issue 21 point 5: every 'see below' has its section; no stray unit ('at 7.1 m/s s'); "
@@ -315,7 +309,6 @@ def test_stid_fit_as_a_command_gives_finite_numbers_and_true_notes(fits):
     assert abs(said[0] - slow) <= 0.1 + 2 * float(np.median(np.diff(df["t"]))), (said, slow)
 
 
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_SOLVER_HONESTY)
 def test_the_fit_says_whether_it_converged(fits):
     for model, res in fits.items():
         doc = res.to_json()
@@ -324,7 +317,6 @@ def test_the_fit_says_whether_it_converged(fits):
             assert re.search(r"not converge|failed", res.table()), (model, res.table())
 
 
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_SOLVER_HONESTY)
 def test_a_model_with_more_never_fits_worse_without_saying_it_failed(fits):
     """bicycle+tyre_saturation contains bicycle (mu large): on ds1 its fit stopped at its start
     (ay 3.9% against the bicycle's 33.0%, mu 1 with a zero-width interval)."""
@@ -336,7 +328,6 @@ def test_a_model_with_more_never_fits_worse_without_saying_it_failed(fits):
         assert re.search(r"did not converge|failed", more.table()), more.table()
 
 
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_NULL_INTERVALS)
 def test_no_interval_is_zero_wide(fits):
     for model, res in fits.items():
         for name, p in res.to_json()["params"].items():
@@ -345,7 +336,6 @@ def test_no_interval_is_zero_wide(fits):
                 assert ci[1] - ci[0] > 1e-6 * max(1.0, abs(p["value"])), (model, name, ci)
 
 
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_INTERVALS)
 def test_one_car_minutes_apart_gives_intervals_that_meet(vehicle):
     """ds3 and ds4: the same car on the same floor, 7 minutes apart. Its cornering stiffness
     and inertia did not change between them, so 95% intervals that exclude each other say
@@ -433,7 +423,6 @@ def test_stid_compare_as_a_command_keeps_the_heading_inside_a_fitted_bias():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason=WAITS_FOR_SOLVER_HONESTY)
 def test_stid_compare_never_shows_a_failed_fit_as_a_result():
     models = ["bicycle", "bicycle+tyre_saturation"]
     doc = json.loads(run_tool("compare", "ds1.csv", "--vehicle", VEHICLE.name,

@@ -107,7 +107,7 @@ def disagreements(parts: dict, names) -> list:
         for n in names:
             vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n),
                      dict(zip(g.result.names, g.result.half95)).get(n)) for g in groups]
-            vals = [v for v in vals if v[2] is not None]
+            vals = [v for v in vals if v[2] is not None and np.all(np.isfinite(v[2]))]
             bad = False
             for i in range(len(vals)):
                 for j in range(i + 1, len(vals)):
@@ -117,14 +117,15 @@ def disagreements(parts: dict, names) -> list:
                         bad = True
             if bad:
                 unit = unit_suffix(groups[0].result.units.get(n, ""))
-                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}] at {lab}" for lab, v, ci, _ in vals)
-                out.append((kind, n, f"{n} {txt}{unit}"))
+                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]{unit} at {lab}" for lab, v, ci, _ in vals)
+                out.append((kind, n, f"{n} {txt}"))
     return out
 
 
-def check_evidence(model_name: str, effect: str, vehicle, stretches, result, mapper=map) -> Evidence:
+def check_evidence(model_name: str, effect: str, vehicle, stretches, result, mapper=map, parts=None) -> Evidence:
     """Does the effect's parameter hold as one plausible value across the evidence?
-    ``mapper``: as in ``fit_groups``."""
+    ``mapper``: as in ``fit_groups``; ``parts``: the groups' fits of ``model_name`` when the
+    caller has them (a second effect of the same model is checked on the same fits)."""
     from stid.models.model import Model
 
     model = Model(model_name, vehicle)
@@ -134,9 +135,12 @@ def check_evidence(model_name: str, effect: str, vehicle, stretches, result, map
         return Evidence(False, "its parameter stopped at the edge of the plausible range ("
                         + ", ".join(f"{n} = {result.value(n):.4g}{unit_suffix(result.units.get(n, ''))}" for n in stuck)
                         + "): the data push it outside what the physics allows")
-    parts = fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
+    parts = parts if parts is not None else fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
     for kind, groups in parts.items():
         for g in groups:
+            if not g.result.converged:  # its values are where a solver stopped: they show nothing
+                return Evidence(False, f"fitted at {g.label} alone, the fit did not converge ({g.result.status})",
+                                parts)
             s = at_bound(g.result, own, model)
             if s:
                 return Evidence(False, f"fitted at {g.label} alone, {', '.join(s)} stopped at a bound "

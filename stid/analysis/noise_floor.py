@@ -28,6 +28,8 @@ estimator is wrong. Samples lost on the link are neither trained on nor scored."
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, lapack, toeplitz
 
@@ -269,3 +271,30 @@ def _floor_from(errors):
 
 def noise_floor(stretches, memory_s: float = MEMORY_S, keep_from_s: float = 0.5) -> dict:
     return noise_floor_uncertainty(stretches, memory_s, keep_from_s)[0]
+
+
+def below_floor(res, floor, se) -> dict:
+    """Per output, how many fit points the model is short of the noise floor, where that is more
+    than chance (2.576 standard errors of the floor) and 2 points: its intervals then hold only
+    if the model were right."""
+    return {o: round(floor[o] - res.fit[o], 2) for o in floor
+            if o in res.fit and np.isfinite(floor[o]) and floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
+
+
+def floor_words(floor: dict, se: dict | None = None) -> str:
+    """The noise floor per output, or why an output has none (``se``: its standard errors)."""
+    known = [o for o, v in floor.items() if math.isfinite(v)]
+    wide = {o: (se or {})[o] for o in floor if o not in known and math.isfinite((se or {}).get(o, math.nan))}
+    parts = []
+    if known:
+        parts.append("noise floor " + ", ".join(f"{o} {floor[o]:.1f}%" for o in known)
+                     + " (what a correct model reaches here)")
+    if wide:
+        parts.append(("" if parts else "noise floor: ") + ", ".join(wide) + " not determined by this data "
+                     "(standard error " + ", ".join(f"{s:.0f}" for s in wide.values()) + " points): it needs "
+                     "steering across frequencies, such as random steer, not only circles or steps")
+    rest = [o for o in floor if o not in known and o not in wide]
+    if rest:  # (alone, it is the whole floor: no outputs named)
+        parts.append((", ".join(rest) + " " if parts else "noise floor: ") + "not estimated (the stretches are "
+                     "too short for its 1 s predictor in 5 folds; log longer runs)")
+    return "; ".join(parts)

@@ -66,3 +66,32 @@ def analyse(predictions, max_lag_s: float = 0.5) -> ResidualAnalysis:
                             cross={o: v / n_tot for o, v in cross.items()}, band=Z99 / np.sqrt(n_tot),
                             tau_int={o: float(v) for o, v in taus.items()}, n=n_tot,
                             cross_band={o: Z99 * np.sqrt(max(v / n_tot, 1.0) / n_tot) for o, v in bart.items()})
+
+
+def noise_autocorrelation(fs_raw: float, dt: float, sensor_hz: float = 0.0, max_lag_s: float = 0.5,
+                          n: int = 1 << 16) -> np.ndarray:
+    """What a correct model's residual autocorrelation is when the sensor's noise is white:
+    the autocorrelation, at lags 0..max_lag_s of the fit's sample time ``dt``, of white noise
+    sampled at ``fs_raw``, through the sensor's first-order output filter (``sensor_hz``; 0:
+    none) and the fit's prefilter and decimation (stid.fit.dataset.filtered). These colour any
+    residual: judged against zero with the white-noise band, even a correct model fails. (A
+    fixed seed: the same curve each time; its own sampling error is about 1/sqrt(n/q), below
+    the band drawn around it.)"""
+    from stid.fit.dataset import _decimate, prefilter
+
+    q = max(1, int(round(dt * fs_raw)))
+    x = np.random.default_rng(0).standard_normal(n)
+    if sensor_hz and sensor_hz < 0.45 * fs_raw:
+        a = np.exp(-2 * np.pi * sensor_hz / fs_raw)  # the first-order filter, sampled
+        from scipy.signal import lfilter
+
+        x = lfilter([1 - a], [1, -a], x)
+    e = _decimate(prefilter(x, fs_raw), q)
+    L = max(2, int(max_lag_s / dt))
+    return _xcorr(e, e, L)[L:]
+
+
+def coloured_band(rho: np.ndarray, n: int) -> float:
+    """99% band of a sample autocorrelation around ``rho`` (Bartlett: a series with that
+    autocorrelation, ``n`` samples; at lags past its correlation time)."""
+    return float(Z99 * np.sqrt((1 + 2 * np.sum(rho[1:] ** 2)) / max(n, 1)))

@@ -6,7 +6,7 @@ what a correct model leaves), so "where" means "where the model's error exceeds 
 the data allow": per output, per frequency band, per amplitude (|steer|, |ay|), per
 speed (the model refitted at each speed on its own: where its parameters disagree,
 the model is wrong in a way that changes with speed), and what the residual follows
-(steer, steer rate, ay, r, r/vx, vx; ax is not in the fitted stretches)."""
+(steer, steer rate, ay, r, r/vx, vx, and ax or beta where the log has them)."""
 
 from __future__ import annotations
 
@@ -31,10 +31,14 @@ class Unexplained:
     by_amplitude: dict = field(default_factory=dict)  # "|steer|"/"|ay|" -> output -> [(bin, rms, rms / output rms)]
     by_speed: list = field(default_factory=list)  # [(label, {param: (value, lo, hi)})]
     follows: dict = field(default_factory=dict)  # output -> [(signal, correlation, band)]
+    pairs_tried: dict = field(default_factory=dict)  # an effect not named -> its pair search's JSON
 
     def to_json(self) -> dict:
-        return {"significant": self.significant, "model": self.model,
-                "gap": {k: round(v, 2) for k, v in self.gap.items()}, "where": list(self.where)}
+        out = {"significant": self.significant, "model": self.model,
+               "gap": {k: round(v, 2) for k, v in self.gap.items()}, "where": list(self.where)}
+        if self.pairs_tried:  # "the catalogue lacks it" is said after these
+            out["pairs_tried"] = self.pairs_tried
+        return out
 
 
 def _residuals(result):
@@ -51,8 +55,10 @@ def _band_rms(x: np.ndarray, fs: float, lo: float, hi: float) -> float:
 
 
 def _regressors(stretches, preds):
-    """Per stretch, the signals a residual may follow, on the kept samples."""
-    out = {k: [] for k in ("steer", "steer rate", "ay", "r", "r/vx", "vx")}
+    """Per stretch, the signals a residual may follow, on the kept samples: the model's inputs and
+    outputs, and every other channel the log measured (ax, beta) where every stretch has it."""
+    other = [n for n in (stretches[0].measured or {}) if all(n in (st.measured or {}) for st in stretches)]
+    out = {k: [] for k in ("steer", "steer rate", "ay", "r", "r/vx", "vx", *other)}
     for st, p in zip(stretches, preds):
         k = p.keep
         out["steer"].append(st.steer[k])
@@ -61,6 +67,8 @@ def _regressors(stretches, preds):
         out["r"].append(p.yhat[k, 1])
         out["r/vx"].append((p.yhat[:, 1] / st.vx_series)[k])
         out["vx"].append(st.vx_series[k])
+        for n in other:
+            out[n].append(st.measured[n][k])
     return {n: np.concatenate(v) for n, v in out.items()}
 
 
@@ -69,7 +77,8 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     """What the model leaves, and where (``mapper``: over the per-speed refits, as in
     stid.analysis.evidence.fit_groups; ``parts``: those refits when the caller has them)."""
     from stid.analysis.evidence import disagreements, fit_groups
-    from stid.analysis.noise_floor import floor_errors, floor_rate
+    from stid.analysis.noise_floor import floor_errors, floor_rate, floor_words
+    from stid.analysis.speeds import one_speed_words
     from stid.stats import tau_int
 
     gap = {o: float(floor[o] - result.fit[o]) for o in OUTS}
@@ -78,8 +87,6 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     for r in reasons:
         u.where.append(r)
     if not all(np.isfinite(floor[o]) for o in OUTS):
-        from stid.present import floor_words
-
         u.where.append(floor_words(floor, floor_se) + ": what a correct model reaches here is unknown")
         return u
     if not short:
@@ -155,8 +162,7 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
         fit_by = ", ".join(f"{o} " + "/".join(f"{g.result.fit[o]:.1f}" for g in groups) + "%" for o in short)
         u.where.append(f"fit at {' / '.join(g.label for g in groups)}, each on its own: {fit_by}")
     else:
-        u.where.append("the runs hold one speed: drive the same manoeuvre at a second speed to see whether the "
-                       "missing part changes with speed")
+        u.where.append(one_speed_words(stretches))
     # -- what the residual follows
     reg = _regressors(stretches, preds)
     for o in short:
@@ -176,10 +182,11 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
         rows.sort(key=lambda t: -abs(t[1]))
         u.follows[o] = rows
         hits = [t for t in rows if abs(t[1]) > t[2]]
-        if hits:
+        if hits:  # every channel it follows: the strongest three with their numbers first
             u.where.append(f"the {o} residual follows " + ", ".join(f"{n} (correlation {c:+.2f})" for n, c, _ in hits[:3])
+                           + "".join(f", {n} ({c:+.2f})" for n, c, _ in hits[3:])
                            + f" (chance stays within +-{band:.2f})")
         else:
-            u.where.append(f"the {o} residual follows none of steer, steer rate, ay, r, r/vx, vx beyond chance "
+            u.where.append(f"the {o} residual follows none of {', '.join(reg)} beyond chance "
                            f"(+-{band:.2f}): look at its spectrum and at signals not logged")
     return u

@@ -41,6 +41,7 @@ GAP_REACH_S = 0.02
 # relation unchanged). It removes what the model should not chase: the 50 Hz steps of
 # the servo pulse train, engine vibration, noise above the vehicle's band.
 PREFILTER_HZ = 20.0
+OTHER_MEASURED = ("ax", "beta")  # optional logged channels a stretch carries beside its outputs
 
 
 @dataclass
@@ -56,6 +57,7 @@ class Stretch:
     vx: float  # median speed [m/s], for labels and per-speed grouping
     valid: np.ndarray | None = None  # False where an output sample is not a measurement
     sensors: dict | None = None  # the sensor chain the outputs went through (stid.sensor_chain)
+    measured: dict | None = None  # other logged channels on this grid (ax, beta): what a residual may follow
 
     @property
     def dt(self) -> float:
@@ -167,7 +169,8 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
         if not found:
             reasons.append(f"{run.name}: no stretch of at least {min_s + 2 * trim_s:.0f} s {what}")
             continue
-        q, sig, t = filtered(run, target_fs)
+        other = tuple(n for n in OTHER_MEASURED if getattr(run, n) is not None)
+        q, sig, t = filtered(run, target_fs, names=("steer", "ay", "r", "vx") + other)
         for k, (a, b) in enumerate(found):
             a = (a + int(trim_s * fs)) // q
             b = min((b - int(trim_s * fs)) // q, len(t))
@@ -178,7 +181,8 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
                                vx_series=np.maximum(sig["vx"][sl], 0.5 * V_MOVING),
                                vx=float(np.median(run.vx[a * q:b * q])),
                                valid=None if valid.all() else valid,
-                               sensors=run.meta.get("sensor_chain")))
+                               sensors=run.meta.get("sensor_chain"),
+                               measured={n: sig[n][sl] for n in other} or None))
     if not out:
         if constant_speed:
             raise InputError(f"the {method or 'frequency-response'} method needs stretches at one constant "

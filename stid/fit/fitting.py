@@ -16,7 +16,7 @@ import numpy as np
 
 from stid import sensor_chain
 from stid.errors import InputError
-from stid.fit import dataset
+from stid.fit import dataset, nested
 from stid.fit.solver import ParamSpace
 from stid.fit.steady_fit import fit_steady
 from stid.fit.time_fit import fit_time
@@ -26,7 +26,8 @@ METHODS = ("auto", "steady", "freq", "freq-study", "time", "two-step")
 
 
 def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynamic: str = "time",
-        intervals: str = "model-error", stretches=None, init: dict | None = None, multistart: bool | None = None):
+        intervals: str = "model-error", stretches=None, init: dict | None = None, multistart: bool | None = None,
+        inner=None):
     """Fit ``model_name`` to the runs by ``method``. ``intervals``: ``"model-error"`` (the
     default: also a block jackknife, so intervals cover model error that varies through the
     data) or ``"noise"`` (the sandwich alone; faster, for inner loops).
@@ -36,7 +37,11 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
     parameters and fit percent in all of them. ``stretches``: the runs' time-domain
     stretches when the caller has built them already (diagnose builds them once for all its
     fits); ``init`` and ``multistart`` only choose where the solver starts, not what it
-    minimises."""
+    minimises.
+
+    A model with effects and no ``init`` starts from the bicycle's solution (stid.fit.nested;
+    ``inner``: the bicycle's fit by the same method on the same runs, when the caller has it),
+    and a time-domain fit that still ends below the bicycle says it did not converge."""
     if method not in METHODS:
         raise InputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     if model_name.split("+")[0].strip() in ("greybox", "greybox-study"):
@@ -50,24 +55,33 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
     model = Model(model_name, vehicle)
     if stretches is not None and method not in ("time", "auto"):
         raise ValueError("prebuilt stretches are the time-domain fit's")
-    if stretches is not None or init is not None or multistart is not None:
-        if method == "auto" and stretches is None:
-            method = _choose(runs)
-        if method in ("auto", "time"):
-            result = fit_time(model, stretches if stretches is not None else dataset.dynamic_stretches(runs),
-                              intervals=intervals, init=init, multistart=multistart)
+    if method == "auto":
+        method = "time" if stretches is not None else _choose(runs)
+    if method == "time" and stretches is None:
+        stretches = dataset.dynamic_stretches(runs)
+    in_time = method == "time" or (method == "two-step" and dynamic == "time")
+    contained = None
+    if model.effects and init is None and method != "steady":
+        contained = inner if inner is not None else fit(runs, vehicle, nested.BASE, method, dynamic, "noise",
+                                                        stretches=stretches if method == "time" else None)
+        if in_time:
+            init = nested.best_start(model, contained.all_params(),
+                                     stretches if stretches is not None else dataset.dynamic_stretches(runs))
         else:
-            result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
-    else:
-        result = _fit_bicycle(model, runs, vehicle, method, dynamic, intervals)
+            init = nested.effect_starts(model, contained.all_params())["effects at default"]
+    result = _fit_model(model, runs, method, dynamic, intervals, stretches, init, multistart)
+    if contained is not None and in_time and nested.worse_than(result, contained):
+        zero = nested.effect_starts(model, contained.all_params())["effects at zero"]
+        again = _fit_model(model, runs, method, dynamic, intervals, stretches, zero, False)
+        result = again if again.loglik > result.loglik else result
+        if nested.worse_than(result, contained):
+            nested.say_worse(result, contained)
     for w in sensor_chain.undeclared_warnings(runs, vehicle):
         result.warn(w)
     return result
 
 
-def _fit_bicycle(model, runs, vehicle, method, dynamic, intervals):
-    if method == "auto":
-        method = _choose(runs)
+def _fit_model(model, runs, method, dynamic, intervals, stretches, init, multistart):
     if method == "steady":
         return fit_steady(model, dataset.steady_points(runs))
     if method in ("freq", "freq-study"):
@@ -76,10 +90,10 @@ def _fit_bicycle(model, runs, vehicle, method, dynamic, intervals):
         from stid.fit.freq_fit import fit_freq
 
         return fit_freq(model, dataset.dynamic_stretches(runs, constant_speed=True, method=method),
-                        weighting="wls" if method == "freq" else "study", method_name=method)
+                        weighting="wls" if method == "freq" else "study", method_name=method, init=init)
     if method == "time":
-        return fit_time(model, dataset.dynamic_stretches(runs), intervals=intervals)
-    return two_step(model, runs, dynamic, intervals)
+        return fit_time(model, stretches, intervals=intervals, init=init, multistart=multistart)
+    return two_step(model, runs, dynamic, intervals, init=init, multistart=multistart)
 
 
 def _choose(runs) -> str:
@@ -101,8 +115,10 @@ def _choose(runs) -> str:
                      "speed sweep")
 
 
-def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-error"):
-    """Study 1's recommendation: stiffness from steady state first, the rest from dynamics."""
+def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-error", init: dict | None = None,
+             multistart: bool | None = None):
+    """Study 1's recommendation: stiffness from steady state first, the rest from dynamics
+    (``init``, ``multistart``: where the dynamic fit starts)."""
     ss = fit_steady(model, dataset.steady_points(runs))
     stretches = dataset.dynamic_stretches(runs, constant_speed=dynamic != "time", method=dynamic)
     v = model.vehicle
@@ -119,8 +135,8 @@ def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-
         fitter = fit_time
     else:
         from stid.fit.freq_fit import fit_freq as fitter
-    kw = {"intervals": intervals} if dynamic == "time" else {}
-    res = fitter(model, stretches, space=space, method_name=f"two-step (steady + {dynamic})", **kw)
+    kw = {"intervals": intervals, "multistart": multistart} if dynamic == "time" else {}
+    res = fitter(model, stretches, space=space, method_name=f"two-step (steady + {dynamic})", init=init, **kw)
     if "Cf" in ss.names:
         for i, n in enumerate(ss.names):
             se = ss.stderr[i]
@@ -135,8 +151,8 @@ def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-
         se_cr = res.half95[res.names.index("Cr")] / 1.959964
         var = ((v.b * v.L / (v.mass * D ** 2)) ** 2 * ss.stderr[0] ** 2
                + (v.b * v.a / (D * p_hat["Cr"]) ** 2) ** 2 * se_cr ** 2)
-        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr "
-                                                 f"(std. error {np.sqrt(var):.4g})")
+        se_cf = f"std. error {np.sqrt(var):.4g}" if np.isfinite(var) else "no std. error: Cr has none"
+        res.fixed["Cf"] = (p_hat["Cf"], "N/rad", f"from eta = {ss.value('eta'):.4g} rad/(m/s^2) and Cr ({se_cf})")
         res.extra["eta"] = ss.value("eta")
     res.extra["steady"] = ss
     for w in ss.warnings:

@@ -21,7 +21,7 @@ from stid.fit.frf import FRF, estimate_frf
 from stid.fit.solver import ParamSpace, starting_points, covariance_white, least_squares, to_physical
 from stid.fit.result import Prediction
 from stid.fit.time_fit import make_result, _keep
-from stid.fit import checks
+from stid.fit import checks, convergence
 
 
 def frf_residual(model, p: dict, frfs: list[FRF], weighting: str) -> np.ndarray:
@@ -68,6 +68,7 @@ def fit_freq(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     preds = [Prediction(s.name, s.t, s.steer, s.y, model.simulate(p_hat, s.steer, s.dt, s.vx_series, sensors=s.sensors), s.vx,
                         _keep(s, 0.5)) for s in stretches]
     result = make_result(model, method_name or f"freq ({weighting})", space, p_hat, cov, preds)
+    result.set_verdict(convergence.judge(res, space))
     result.extra["frfs"] = frfs
     dof = max(len(res.fun) - len(space.free), 1)
     result.extra["chi2_red"] = float(res.fun @ res.fun / dof)

@@ -17,6 +17,7 @@ from scipy import signal
 
 from stid import sensor_chain
 from stid.errors import InputError
+from stid.fit import convergence
 from stid.fit.dataset import filtered
 from stid.fit.result import FitResult, Prediction, fit_percent
 from stid.fit.solver import ParamSpace, covariance_sandwich, least_squares, to_physical
@@ -161,6 +162,9 @@ def fit_greybox(runs, vehicle, form: str = "greybox", discard_s: float = 0.3) ->
     prob = _Problem(model, pieces, vehicle, discard_s)
     space, res, p_hat, cov = prob.fit(model.defaults())
     result = _result(prob, space, res, p_hat, cov)
+    # (a simulation that diverged gives nan, which the cost saw as a large constant)
+    settled = all(np.all(np.isfinite(pr.yhat)) for pr in result.predictions)
+    result.set_verdict(convergence.judge(res, space, simulation_settled=settled))
     result.interval = "95% intervals: noise only (robust covariance of the output-error fit)"
     for chain in sorted({sensor_chain.describe(pc.get("sensors") or sensor_chain.from_vehicle(vehicle))
                          for pc in pieces}):
@@ -244,7 +248,7 @@ def _warn_poorly_determined(result: FitResult, pieces, vehicle, lateral: bool = 
     weak = []
     for name, half, (lo, hi) in zip(result.names, result.half95, result.ci95):
         v = result.value(name)
-        if name == "CA" or not v or half <= POOR_HALF_WIDTH * abs(v):
+        if name == "CA" or not v or not np.isfinite(half) or half <= POOR_HALF_WIDTH * abs(v):
             continue
         if name == "Cx":
             if not weak_slip:

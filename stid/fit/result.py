@@ -56,22 +56,51 @@ class FitResult:
     positive: tuple = ()  # parameters positive by nature (a stiffness, an inertia, a lag): see ci95
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
+    # whether the numbers are an optimum (stid.fit.convergence): the solver's words, the parameters
+    # on a bound, and those the data do not determine (name -> why), which get no interval
+    converged: bool = True
+    status: str = ""
+    at_bound: tuple = ()
+    undetermined: dict = field(default_factory=dict)
 
     # -- numbers ------------------------------------------------------------
     @property
     def stderr(self) -> np.ndarray:
-        return np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        """Standard errors; nan for a parameter the data do not determine (a zero from a
+        rank-deficient covariance, or one at a failed optimum, is no standard error)."""
+        se = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        return np.where(self.determined, se, np.nan)
+
+    @property
+    def determined(self) -> np.ndarray:
+        """Per parameter: the data determine it (it has an interval)."""
+        return np.array([n not in self.undetermined for n in self.names], bool)
+
+    def set_verdict(self, verdict) -> None:
+        """Take a solve's verdict (stid.fit.convergence.Verdict)."""
+        self.converged, self.status = bool(verdict.converged), verdict.status
+        self.at_bound = tuple(verdict.at_bound)
+        self.undetermined = dict(verdict.undetermined)
+
+    def interval_of(self, name: str):
+        """(lo, hi) of the parameter's 95% interval, or None when the data do not determine it."""
+        if name in self.undetermined or name not in self.names:
+            return None
+        lo, hi = self.ci95[self.names.index(name)]
+        return float(lo), float(hi)
 
     @property
     def half95(self) -> np.ndarray:
         """Each 95% interval's half-width, as its kind makes it (t quantile times the standard
-        error, plus any allowance): what a test of two values against their intervals takes."""
+        error, plus any allowance): what a test of two values against their intervals takes.
+        nan where the data do not determine the parameter."""
         dof = self.ci_dof if self.ci_dof else max(self.n - len(self.values), 1)
         half = stdtrit(dof, 0.975) * self.stderr
         return half + self.ci_allowance if self.ci_allowance is not None else half
 
     @property
     def ci95(self) -> np.ndarray:
+        """(k, 2) rows of 95% intervals; a row of nan where the data do not determine it."""
         half = self.half95
         lo, hi = self.values - half, self.values + half
         # a parameter positive by nature gets the same relative half-width in log space (where the
@@ -122,14 +151,23 @@ class FitResult:
             self.notes.append(text)
 
     # -- presentation ------------------------------------------------------
-    def to_json(self) -> dict:
+    def params_json(self) -> dict:
+        """Each fitted parameter's value, standard error and interval (null where the data do
+        not determine it, with why), unit and whether it sits on a bound; held ones with why."""
         params = {}
-        for name, v, se, (lo, hi) in zip(self.names, self.values, self.stderr, self.ci95):
-            params[name] = {"value": float(v), "stderr": float(se), "ci95": [float(lo), float(hi)],
-                            "unit": self.units[name]}
+        for name, v, se, ok in zip(self.names, self.values, self.stderr, self.determined):
+            params[name] = {"value": float(v), "stderr": float(se) if ok else None,
+                            "ci95": list(self.interval_of(name)) if ok else None,
+                            "unit": self.units[name], "at_bound": name in self.at_bound}
+            if not ok:
+                params[name]["no_interval"] = self.undetermined[name]
         for name, (v, unit, why) in self.fixed.items():
             params[name] = {"value": float(v), "stderr": None, "unit": unit, "fixed": why}
-        return {"model": self.model, "method": self.method, "params": params,
+        return params
+
+    def to_json(self) -> dict:
+        return {"model": self.model, "method": self.method, "converged": bool(self.converged),
+                "status": self.status, "params": self.params_json(),
                 "fit": {k: round(float(v), 2) if np.isfinite(v) else None for k, v in self.fit.items()},
                 "correlation": {"params": list(self.names), "matrix": np.round(self.corr, 4).tolist()},
                 "aic": float(self.aic), "bic": float(self.bic), "n": int(self.n),
@@ -142,10 +180,21 @@ class FitResult:
         head = f"  {'parameter':<14}{'value':>13}{'std. error':>13}{'95% interval':>30}  unit"
         lines.append(head)
         lines.append("  " + "-" * (len(head) + 6))
-        for name, v, se, (lo, hi) in zip(self.names, self.values, self.stderr, self.ci95):
+        widened = False
+        for name, v, se, (lo, hi), half, ok in zip(self.names, self.values, self.stderr, self.ci95, self.half95,
+                                                   self.determined):
+            if not ok:
+                lines.append(f"  {name:<14}{_num(v):>13}{'-':>13}           no interval ({self.undetermined[name]})  "
+                             f"{self.units[name]}")
+                continue
             rel = f"({100 * se / abs(v):.1f}%)" if v else ""
+            # an interval the model-error allowance or a t of few blocks made wider than ~2 standard
+            # errors says so on its row: the two columns would disagree without a word
+            wide = half / se if se > 0 else 0.0
+            mark = f"  (+-{wide:.1f} se)" if wide > WIDE_SE else ""
+            widened |= bool(mark)
             lines.append(f"  {name:<14}{_num(v):>13}{_num(se):>13} {rel:>8}  [{_num(lo)}, {_num(hi)}]  "
-                         f"{self.units[name]}")
+                         f"{self.units[name]}{mark}")
         for name, (v, unit, why) in self.fixed.items():
             lines.append(f"  {name:<14}{_num(v):>13}{'fixed':>13}           {why}  {unit}")
         if self.fit:
@@ -159,13 +208,33 @@ class FitResult:
                       if abs(c[i, j]) > 0.8]
             if strong:
                 lines.append("  strongly correlated: " + ", ".join(f"{a}-{b} {r:+.2f}" for a, b, r in strong))
-        if self.interval:
-            lines.append(f"  {self.interval}")
+        verdict = self.verdict_line()
+        if verdict:
+            lines.append(f"  {verdict}")
+        if self.interval and self.converged:
+            lines.append(f"  {self.interval}"
+                         + ("; a row marked (+-N se) holds an interval N standard errors wide for that reason"
+                            if widened else ""))
         for w in self.notes:
             lines.append(f"  note: {w}")
         for w in self.warnings:
             lines.append(f"  warning: {w}")
         return "\n".join(lines)
+
+
+    def verdict_line(self) -> str:
+        """One line when the numbers are not all an answer: a fit that did not converge, or the
+        parameters the data do not determine; empty otherwise."""
+        if not self.converged:
+            return (f"NOT CONVERGED: these values are where the solver stopped, not an optimum, and have no "
+                    f"intervals ({self.status})")
+        if self.undetermined:
+            return ("no interval for " + ", ".join(f"{n} ({why})" for n, why in self.undetermined.items())
+                    + ": the data do not determine " + ("it" if len(self.undetermined) == 1 else "them"))
+        return ""
+
+
+WIDE_SE = 2.5  # half-width / std. error beyond which a row says how wide (noise alone: t ~ 1.96-2.4)
 
 
 def _num(x: float) -> str:

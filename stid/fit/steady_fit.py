@@ -18,6 +18,9 @@ from stid.fit.dataset import SteadyPoints
 from stid.fit.result import FitResult, fit_percent
 
 
+CLOSED_FORM = "closed form: ordinary least squares on the steady-state lines (no iterations)"
+
+
 def _line(x, y):
     """OLS y = k x + c: (k, c), covariance, residuals."""
     X = np.column_stack([x, np.ones_like(x)])
@@ -55,6 +58,7 @@ def fit_steady(model, pts: SteadyPoints) -> FitResult:
                         cov=cov_d[:1, :1], units={"eta": "rad/(m/s^2)"}, fit=fit, n=n, warnings=warnings,
                         extra=extra)
         res.loglik = _loglik(e_d)
+        res.status = CLOSED_FORM
         return res
     (kb, b0), cov_b, e_b = _line(pts.ay, pts.beta - b * inv_R)
     if kb >= 0:
@@ -83,6 +87,7 @@ def fit_steady(model, pts: SteadyPoints) -> FitResult:
                     positive=("Cf", "Cr"),
                     n=2 * n, warnings=warnings, extra=extra)
     res.loglik = _loglik(e_d) + _loglik(e_b)
+    res.status = CLOSED_FORM
     return res
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.result import FitResult, Prediction, fit_percent
 from stid.fit.solver import ParamSpace, starting_points, covariance_sandwich, least_squares, to_physical
-from stid.fit import checks
+from stid.fit import checks, convergence
 from stid.fit import intervals as jk
 from stid.stats import SCORE_FROM_S, tau_int_blocks
 
@@ -115,15 +115,20 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             k[idx] = False
 
     cov = to_physical(_sandwich(res.jac, res.fun, keeps), space, res.x)
+    preds, settled = [], True
+    for st, k in zip(stretches, keeps):
+        preds.append(Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k))
+        settled = settled and model.converged  # an iterated tyre force settled on every stretch
+    verdict = convergence.judge(res, space, _colour(res.fun.reshape(-1, 2), keeps, stretches[0].dt), settled)
     interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
     widened, jk_dof, allowance = [], None, None
-    if intervals == "model-error":
+    if intervals == "model-error" and verdict.converged:
         seconds = sum(int(k.sum()) * st.dt for st, k in zip(stretches, keeps))
         row_block, n_blocks = jk.row_blocks(len(res.fun) // 2, seconds)
         cov_jx = jk.jackknife_cov(res.jac, res.fun, row_block, n_blocks)
         if cov_jx is None:
             interval_note += f"; too little data for a model-error interval (needs {jk.K_MIN} blocks of " \
-                             f"{jk.BLOCK_MIN_S:g} s)"
+                             f"{jk.BLOCK_SHORT_S:g} s)"
         else:
             cov, widened = jk.combine(cov, to_physical(cov_jx, space, res.x))
             jk_dof = n_blocks - 1
@@ -139,15 +144,14 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             (jk.exact_geometry_change(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
         allow_x, z = jk.geometry_allowance(res.jac, res.fun, probe, change, lambda J, r: _sandwich(J, r, keeps))
         allowance = allow_x * space.dp_dx(res.x)  # to physical units (first order)
-        grown = [n for n, a in zip(space.free, allowance) if a > 0]
+        grown = [n for n, a in zip(space.free, allowance) if a > 0 and n not in verdict.undetermined]
         if grown:
             interval_note += ("; the data show the large-angle geometry the linear model leaves out (a front force "
                               f"that changes with the square of the steer, z = {z:.1f}): {', '.join(grown)} widened "
                               "to hold the answer with exact geometry (cos delta, atan slip angles) too")
 
-    preds = [Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k)
-             for st, k in zip(stretches, keeps)]
     result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
+    result.set_verdict(verdict)
     result.extra["sigma"] = np.asarray(sigma, float)
     result.interval = interval_note
     if widened:

@@ -209,5 +209,9 @@ def available_effects() -> dict[str, type[Effect]]:
 def get_effect(name: str) -> type[Effect]:
     effects = available_effects()
     if name not in effects:
-        raise InputError(f"unknown effect {name!r}; known effects: {', '.join(sorted(effects))}")
+        from difflib import get_close_matches
+
+        near = get_close_matches(name, list(effects), n=1)
+        raise InputError(f"unknown effect {name!r}" + (f" (did you mean {near[0]!r}?)" if near else "")
+                         + f"; known effects: {', '.join(sorted(effects))}")
     return effects[name]

@@ -339,7 +339,8 @@ def _grid_note(parts, times, rate, grid, choice) -> str:
 
 
 def _gyro_zero(run) -> None:
-    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs)
+    # the odometry's speed comes from the motor (ERPM): no hall pulses to wait for
+    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs, lookback_s=0.0)
     run.meta["gyro_bias"] = bias
     if bias is None:
         run.warn("the run never stands still: the gyro's zero is taken as the IMU gives it (start runs with ~2 s "

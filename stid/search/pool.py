@@ -1,0 +1,94 @@
+"""The worker processes one diagnose shares its independent fits between, and the ways
+fits are handed to them (stid.workers holds the pool itself)."""
+
+from __future__ import annotations
+
+from concurrent.futures import Future
+
+from stid import workers
+from stid.models.effect import available_effects
+from stid.models.model import parse_model_name
+
+WORKERS = workers.WORKERS
+
+
+def worker_pool():
+    """Worker processes for one diagnose (None on a one-core machine): the candidates'
+    fits, the evidence's per-speed refits and the noise floor are independent, and run
+    beside each other. Forked after the compiled simulator is loaded, so the workers
+    share it instead of each loading it."""
+    from stid.models.lpv import load_compiled
+
+    return workers.worker_pool(WORKERS, before_fork=load_compiled)
+
+
+def in_workers(model_name: str) -> bool:
+    """Effects defined in the user's own modules (a test file, a notebook) may not be
+    importable in a worker process: models with one run in this process."""
+    _, effects = parse_model_name(model_name)
+    return all(available_effects()[e].__module__.startswith("stid.effects.") for e in effects)
+
+
+def mapper(pool, model_name: str):
+    """A map over independent fits of ``model_name``: all but the last in the worker pool, the
+    last here, where this process would otherwise only wait. With a worker still busy on a fit
+    started ahead of need, two fits then run side by side, not one after the other on the
+    free worker (a job the pool has queued counts as started: it cannot be taken back)."""
+    if pool is None or not in_workers(model_name):
+        return map
+
+    def here_and_there(fn, jobs):
+        jobs = list(jobs)
+        there = [pool.submit(fn, j) for j in jobs[:-1]]
+        here = [fn(j) for j in jobs[-1:]]
+        return [f.result() for f in there] + here
+
+    return here_and_there
+
+
+def shares(items: list, n: int, cost) -> list:
+    """``items`` in at most ``n`` shares of about equal ``cost``, each in the items' order
+    (the largest first to the share that has least)."""
+    out = [[] for _ in range(min(n, len(items)))]
+    load = [0.0] * len(out)
+    for i in sorted(range(len(items)), key=lambda i: -cost(items[i])):
+        k = load.index(min(load))
+        out[k].append(i)
+        load[k] += cost(items[i])
+    return [[items[i] for i in sorted(share)] for share in out]
+
+
+class Ahead:
+    """Jobs ``fn(job)`` started in the worker pool ahead of need (in ``order``), and read when
+    needed. A job no worker has started when it is needed is done here instead of waited for.
+    ``window``: at most that many jobs, from the one being read on, are started (for jobs read in
+    order that may not all be needed: a worker busy with one that is not holds up what follows)."""
+
+    def __init__(self, pool, fn, jobs, order=None, window=None, known=None):
+        self.pool, self.fn, self.jobs = pool, fn, jobs
+        self.order = list(range(len(jobs)) if order is None else order)
+        self.window = len(jobs) if window is None else window
+        self.futures = [None] * len(jobs)
+        for i, result in (known or {}).items():  # done already, elsewhere
+            self.futures[i] = Future()
+            self.futures[i].set_result(result)
+        self._submit_up_to(self.window)
+
+    def _submit_up_to(self, n):
+        if self.pool is not None:
+            for i in self.order[:n]:
+                if self.futures[i] is None:
+                    self.futures[i] = self.pool.submit(self.fn, self.jobs[i])
+
+    def result(self, i):
+        self._submit_up_to(self.order.index(i) + self.window)
+        f = self.futures[i]
+        if f is None or f.cancel():
+            return self.fn(self.jobs[i])
+        return f.result()
+
+    def drop_the_rest(self):
+        """Those not needed: cancelled if not started (a running one is ended with the pool)."""
+        for f in self.futures:
+            if f is not None:
+                f.cancel()

@@ -1,0 +1,122 @@
+"""The words of a diagnosis say what the data hold: units where they belong, speeds counted
+as speeds (not runs), every channel the residual follows, and no pointer to a section that
+is not printed. Data written here from plain physics, or numbers laid out by hand."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stid.fit.dataset import Stretch, Stretches
+
+
+def _stretch(name, vx, fs=100.0, T=30.0, seed=0, **kw):
+    t = np.arange(int(T * fs)) / fs
+    v = vx(t) if callable(vx) else np.full(len(t), float(vx))
+    rng = np.random.default_rng(seed)
+    return Stretch(name, t, 0.05 * rng.standard_normal(len(t)), np.zeros(len(t)), np.zeros(len(t)), v,
+                   float(np.median(v)), **kw)
+
+
+def test_a_value_that_moves_with_speed_carries_its_unit_after_the_number_not_after_the_speed():
+    from stid.analysis.evidence import Group, disagreements
+    from stid.fit.result import FitResult
+
+    def res(v, se):
+        return FitResult(model="m", method="time", names=["tau_steer"], values=np.array([v]),
+                         cov=np.array([[se * se]]), units={"tau_steer": "s"}, n=10_000)
+
+    ((_, _, text),) = disagreements({"speed": [Group("3.1 m/s", [], res(0.029, 0.001)),
+                                               Group("7.1 m/s", [], res(0.016, 0.001))]}, ["tau_steer"])
+    assert "m/s s" not in text, text
+    assert "s at 3.1 m/s" in text and text.endswith("s at 7.1 m/s"), text
+
+
+def test_one_run_across_a_range_of_speeds_is_not_called_one_speed():
+    """One 63 s run on a track spanning 1.2-4.4 m/s (the real log of issue 21): one stretch,
+    one speed group for the evidence, but not one speed."""
+    from stid.analysis.speeds import at_speeds, one_speed_words, stretch_speeds
+
+    track = Stretches([_stretch("track", lambda t: 2.8 + 1.6 * np.sin(2 * np.pi * t / 9.0), T=63.0)])
+    words = one_speed_words(track)
+    assert "one speed" not in words and "1.2-4.4 m/s" in words, words
+    assert at_speeds(track).startswith("over 1.2-4.4 m/s"), at_speeds(track)
+    assert stretch_speeds(track) == "1.2-4.4 m/s"
+    # two runs at one steady speed are one speed; two speeds too short for a fit each are two
+    steady = Stretches([_stretch("a", 4.0), _stretch("b", 4.1, seed=1)])
+    assert "one speed (4 m/s)" in one_speed_words(steady) and at_speeds(steady) == "at 4 m/s (one speed only)"
+    short = Stretches([_stretch("a", 3.0, T=6.0), _stretch("b", 7.0, T=6.0, seed=1)])
+    assert one_speed_words(short).startswith("the data hold 2 speeds (3 m/s for 6 s, 7 m/s for 6 s)")
+    assert at_speeds(short) == "at every speed (3, 7 m/s)"
+
+
+def test_the_residual_is_said_to_follow_ax_when_the_log_has_it(rc_vehicle):
+    """An accelerometer turned by 0.15 rad about z on its mount reads ay + 0.15 ax: on a track,
+    where the car accelerates and brakes, the bicycle's ay residual follows the measured ax,
+    and `unexplained` must say so (it listed only the model's own signals)."""
+    from stid.analysis.noise_floor import noise_floor_uncertainty
+    from stid.analysis.unexplained import describe_unexplained
+    from stid.fit.fitting import fit
+    from test_one_path import bicycle_run
+
+    rng = np.random.default_rng(3)
+    stretches = []
+    for seed, v0 in ((1, 4.0), (2, 6.0)):
+        run = bicycle_run(lambda t: v0 * (1 + 0.25 * np.sin(2 * np.pi * t / 5.0)), T=40.0, fs=100.0, seed=seed)
+        ax = np.gradient(run["vx"], run["t"])
+        ay = run["ay"] + 0.15 * ax
+        ay = ay + 0.02 * np.std(ay) * rng.standard_normal(len(ay))
+        r = run["r"] + 0.02 * np.std(run["r"]) * rng.standard_normal(len(ay))
+        stretches.append(Stretch(f"run{seed}", run["t"], run["steer"], ay, r, run["vx"], v0, measured={"ax": ax}))
+    stretches = Stretches(stretches)
+    res = fit((), rc_vehicle, "bicycle", "time", stretches=stretches)
+    floor, se = noise_floor_uncertainty(stretches)
+    u = describe_unexplained("bicycle", res, rc_vehicle, stretches, floor, se)
+    assert u.gap["ay"] > 0.5, (res.fit, floor)
+    assert "ax" in [n for n, c, band in u.follows["ay"] if abs(c) > band], u.follows["ay"]
+    said = next(w for w in u.where if w.startswith("the ay residual follows"))
+    assert "ax (" in said, said
+
+
+def test_dynamic_stretches_carry_the_logged_ax():
+    from stid.fit.dataset import dynamic_stretches
+    from stid.run import Run
+
+    t = np.arange(3000) / 100.0
+    vx = 4.0 + np.sin(t)
+    run = Run("r", t, 0.05 * np.sin(3 * t), np.sin(3 * t), np.cos(3 * t), vx, ax=np.cos(t))
+    (st,) = dynamic_stretches([run])
+    assert st.measured is not None and set(st.measured) == {"ax"}
+    # prefiltered at 20 Hz like the outputs: a 0.16 Hz swing passes unchanged
+    assert np.max(np.abs(st.measured["ax"] - np.cos(st.t))) < 0.01
+
+
+def _round(floor, gap_where):
+    """One round laid out by hand: a base fit of two stretches and nothing named."""
+    from types import SimpleNamespace
+
+    from stid.analysis.unexplained import Unexplained
+    from stid.diagnose import Diagnosis
+
+    preds = [SimpleNamespace(vx=3.0), SimpleNamespace(vx=7.0)]
+    base = SimpleNamespace(fit={"ay": 90.0, "r": 93.0}, predictions=preds)
+    d = Diagnosis("bicycle", base, floor, {"ay": 1.0, "r": 1.0}, 1000.0, [],
+                  floor_se={"ay": math.nan, "r": math.nan})
+    d.unexplained = Unexplained(significant=False, gap={o: floor[o] - base.fit[o] for o in floor},
+                                where=gap_where, model="bicycle")
+    return d
+
+
+def test_every_see_below_has_its_section():
+    """A low-rate log with gaps has no noise floor: the verdict pointed to 'unexplained' below,
+    which was not printed (its gap was not a number)."""
+    from stid.present import diagnosis_text
+
+    for floor in ({"ay": math.nan, "r": math.nan}, {"ay": 99.0, "r": 98.0}, {"ay": 99.0, "r": math.nan}):
+        text = diagnosis_text([_round(floor, ["noise floor: not estimated (the stretches are too short)"])])
+        if "see 'unexplained' below" in text:
+            assert "unexplained after bicycle" in text, text
+        assert "noise floor" in text
+    text = diagnosis_text([_round({"ay": math.nan, "r": math.nan}, ["x"])])
+    assert "no noise floor" in text and "no effect of the catalogue explains" not in text, text
