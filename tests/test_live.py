@@ -381,3 +381,27 @@ def _sse(stream) -> dict:
             data = json.loads(line[6:])
         elif line == "" and data is not None:
             return data
+
+
+def test_the_diagnosis_line_from_stid_diagnose_json_as_documented():
+    """The contract of DESIGN.md and docs/diagnosis.md: ``named`` (one effect or a pair),
+    each candidate's own ``params`` and ``units``; before ``named`` existed, the best
+    significant candidate."""
+    from stid.live.diagnosis import named_effect, verdict
+
+    one = {"model": "bicycle", "named": ["actuator_lag"], "candidates": [
+        {"effect": "actuator_lag", "significant": True, "params": {"tau_steer": 0.055}, "units": {"tau_steer": "s"}},
+        {"effect": "sensor_delay", "significant": False, "params": {"delay_s": 0.05}, "units": {"delay_s": "s"}}]}
+    assert verdict(json.dumps(one), 40.0) == "diagnosis: actuator_lag likely: tau_steer 55 ms (stid diagnose, " \
+                                             "40 s of driving)"
+    pair = {"model": "bicycle", "named": ["actuator_lag", "accel_offset"], "candidates": [
+        {"effect": "actuator_lag", "significant": True, "params": {"tau_steer": 0.06}, "units": {"tau_steer": "s"}},
+        {"effect": "accel_offset", "significant": True, "named_with": "actuator_lag",
+         "params": {"x_acc": 0.08}, "units": {"x_acc": "m"}}]}
+    assert "actuator_lag + accel_offset likely: tau_steer 60 ms, x_acc 8.0 cm" in verdict(json.dumps(pair), 30)
+    assert named_effect(json.dumps(pair)) == "actuator_lag+accel_offset"
+    none = {"model": "bicycle+actuator_lag", "named": [], "candidates": []}
+    assert "nothing missing from bicycle+actuator_lag" in verdict(json.dumps(none), 30)
+    old = {"model": "bicycle", "candidates": [{"effect": "body_roll", "significant": True, "params": {}}]}
+    assert named_effect(json.dumps(old)) == "body_roll"
+    assert verdict("stid diagnose: error: ...", 30) is None

@@ -70,31 +70,46 @@ class BackgroundDiagnosis:
                 self.proc.wait()
 
 
+def named(doc: dict) -> list:
+    """The effects a round tells the user to add: ``named`` (one, or a pair), or in an older
+    diagnosis the best significant candidate."""
+    if isinstance(doc.get("named"), list):
+        return [str(e) for e in doc["named"]]
+    best = next((c for c in doc.get("candidates", []) if c.get("significant")), None)
+    return [best["effect"]] if best else []
+
+
 def verdict(output: str, driving_s: float) -> str | None:
-    """One line from ``stid diagnose --json``: the best significant candidate with its own
-    parameters, or that nothing is missing; None when the output is not a diagnosis."""
+    """One line from ``stid diagnose --json``: what it names with their parameters, or that
+    nothing is missing; None when the output is not a diagnosis."""
     try:
         doc = json.loads(output)
     except (json.JSONDecodeError, TypeError):
         return None
     if not isinstance(doc, dict) or "candidates" not in doc:
         return None
-    best = next((c for c in doc["candidates"] if c.get("significant")), None)
+    effects = named(doc)
     at = f"(stid diagnose, {driving_s:.0f} s of driving)"
-    if best is None:
+    if not effects:
         return f"diagnosis: nothing missing from {doc.get('model', 'the model')} that these data show {at}"
-    params = best.get("params", {})
-    units = best.get("units", {})
-    shown = ", ".join(_quantity(n, v, units.get(n, "")) for n, v in params.items())
-    return f"diagnosis: {best['effect']} likely{': ' + shown if shown else ''} {at}"
+    shown = {}
+    for c in doc["candidates"]:
+        if c.get("effect") in effects:
+            units = c.get("units", {})
+            for n, v in (c.get("params") or {}).items():
+                shown.setdefault(n, _quantity(n, v, units.get(n, "")))
+    values = ", ".join(shown.values())
+    return f"diagnosis: {' + '.join(effects)} likely{': ' + values if values else ''} {at}"
 
 
 def named_effect(output: str) -> str | None:
+    """What to add to the model (``a+b`` for a pair), or None."""
     try:
         doc = json.loads(output)
-        return next((c["effect"] for c in doc["candidates"] if c.get("significant")), None)
-    except (json.JSONDecodeError, TypeError, KeyError):
+    except (json.JSONDecodeError, TypeError):
         return None
+    effects = named(doc) if isinstance(doc, dict) else []
+    return "+".join(effects) or None
 
 
 def _quantity(name: str, value: float, unit: str) -> str:

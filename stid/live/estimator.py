@@ -72,6 +72,7 @@ class Update:
     history: list = field(default_factory=list)  # (seconds, {name: percent}) of every update so far
     targets_from: str = ""
     finished: bool = False
+    converged: bool = True  # the fit's verdict (stid.fit.convergence): an optimum, or not
     cpu_s: float = 0.0  # CPU seconds of this update (reading the file included)
     wall: float = field(default_factory=time.time)
 
@@ -83,7 +84,7 @@ class Update:
                 "events": [{"at_s": round(a, 2), "event": e, "detail": d} for a, e, d in self.events],
                 "history": [{"seconds": round(s, 2), "percent": {k: _finite(v) for k, v in p.items()}}
                             for s, p in self.history],
-                "targets_from": self.targets_from, "finished": self.finished, "cpu_s": round(self.cpu_s, 3),
+                "targets_from": self.targets_from, "finished": self.finished, "converged": self.converged, "cpu_s": round(self.cpu_s, 3),
                 "wall": self.wall}
 
 
@@ -156,9 +157,13 @@ class Estimator:
             h = float(half[i]) if np.isfinite(half[i]) else None
             up.params.append(ParamState(name, res.units.get(name, ""), float(res.values[i]), h,
                                         self.targets.get(name)))
-        for w in res.warnings:
-            if "stopped at its bound" in w:
-                up.state.append(w)
+        up.converged = bool(res.converged)
+        if not up.converged:
+            up.state.append(f"the fit did not converge on the data so far ({res.status}): its numbers are not an "
+                            "optimum and have no intervals")
+        for name, why in res.undetermined.items():
+            if up.converged:
+                up.state.append(f"{name}: no interval ({why}): the data so far do not determine it")
 
 
 def residual_sigma(res) -> np.ndarray:
@@ -172,7 +177,7 @@ def residual_sigma(res) -> np.ndarray:
 def done_line(up: Update) -> str | None:
     """The line that tells the driver to stop: every parameter with a target has reached it."""
     aimed = [p for p in up.params if p.target is not None]
-    if not aimed or not all(p.met for p in aimed):
+    if not aimed or not up.converged or not all(p.met for p in aimed):
         return None
     reached = ", ".join(f"{p.name} ±{p.percent:.1f}% (≤ {p.target:g}%)" for p in aimed)
     return (f"done: every target of {up.model} is reached after {up.seconds:.0f} s of data ({reached}); "
