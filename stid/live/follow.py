@@ -70,7 +70,7 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                 if diag.effect and up.params and not up.done:
                     # a model without what the car has: its residual is model error, which more
                     # driving does not shrink as the plan assumes
-                    line = (f"a model with what the diagnosis names: stid live ... --model {model}+{diag.effect} "
+                    line = (f"a model with what the diagnosis names: --model {model}+{diag.effect} "
                             "(the fit then misses less)")
                     if line not in up.lacking:
                         up.lacking = up.lacking + [line]
