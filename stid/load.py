@@ -315,7 +315,8 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     t0 = float(np.median(t_us - k * step))  # robust to late samples: most are on time
     tu = t0 + np.arange(int(k[-1]) + 1) * step
     nearest = k
-    filled = len(tu) - len(np.unique(k))
+    # (distinct places counted by a sort: numpy 2.4's hashing np.unique took 0.17 s of 150k samples)
+    filled = len(tu) - (np.count_nonzero(np.diff(np.sort(k))) + 1)
     ax, ay, az = convert.accelerations(s, hello, vehicle)
     r = convert.yaw_rate(s, hello, vehicle)
     steer = convert.steer_angle(s["steer_us"], vehicle)

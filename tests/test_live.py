@@ -405,3 +405,77 @@ def test_the_diagnosis_line_from_stid_diagnose_json_as_documented():
     old = {"model": "bicycle", "candidates": [{"effect": "body_roll", "significant": True, "params": {}}]}
     assert named_effect(json.dumps(old)) == "body_roll"
     assert verdict("stid diagnose: error: ...", 30) is None
+
+
+def test_a_growing_log_reread_with_its_chunks_remembered_reads_as_a_fresh_read(tmp_path):
+    """stid live keeps what a log's chunks held between reads (they never change once
+    written): each read of the growing file equals a fresh read of it, samples, messages and
+    damage alike, including a prefix cut inside a chunk."""
+    from test_files_damage import circle_stream, record
+
+    from host.mcap_read import read_log
+
+    full = tmp_path / "full.mcap"
+    record(circle_stream(12.0), full, flush_s=1.0)
+    data = full.read_bytes()
+    growing = tmp_path / "growing.mcap"
+    chunks: dict = {}
+    for frac in (0.3, 0.31, 0.6, 0.9, 1.0):
+        growing.write_bytes(data[:int(frac * len(data))])
+        remembered, fresh = read_log(growing, chunks), read_log(growing)
+        assert np.array_equal(remembered.samples, fresh.samples)
+        assert remembered.events == fresh.events and remembered.hellos == fresh.hellos
+        assert remembered.truncated == fresh.truncated and remembered.frames == fresh.frames
+        assert [vars(d) for d in remembered.damage] == [vars(d) for d in fresh.damage]
+    assert chunks and len(fresh.samples) > 0
+
+
+def test_an_update_slower_than_the_data_skips_ahead_to_the_newest(car, tmp_path, monkeypatch):
+    """The file grows in 12 steps while every update takes 0.4 s (asked for every 0.05 s):
+    the view never works through the steps one by one; each update is on the newest data,
+    and the last one on all of it."""
+    import threading
+
+    from stid.live import follow
+    from stid.live.estimator import Estimator
+
+    full = tmp_path / "full.csv"
+    bicycle_csv(full, 24.0, seed=9)
+    rows = full.read_text().splitlines(keepends=True)
+    growing = tmp_path / "growing.csv"
+    growing.write_text("".join(rows[:len(rows) // 4]))
+    slow = Estimator.update
+
+    def slow_update(self, snap, path=""):
+        time.sleep(0.4)
+        return slow(self, snap, path)
+
+    monkeypatch.setattr(Estimator, "update", slow_update)
+
+    done = {}
+
+    def grow():
+        for k in range(1, 13):
+            time.sleep(0.1)
+            n = len(rows) // 4 + (len(rows) - len(rows) // 4) * k // 12
+            growing.write_text("".join(rows[:n]))
+        done["at"] = time.time()
+
+    writer = threading.Thread(target=grow)
+    out = io.StringIO()
+    writer.start()
+    stopper = threading.Timer(4.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    stopper.start()
+    try:
+        follow.live(growing, _vehicle(car), "bicycle", {}, "test", follow=True, every=0.05, json_lines=True,
+                    diagnose=False, stream=out)
+    finally:
+        stopper.cancel()
+        writer.join()
+    ups = [json.loads(line) for line in out.getvalue().splitlines()]
+    fitted = [u["seconds"] for u in ups if u["params"]]
+    assert fitted == sorted(fitted)
+    # every update whose read came after the last growth (its Update is made 0.4 s after the
+    # read) is on all the data: none works through a backlog of older states
+    late = [u["seconds"] for u in ups if u["wall"] - 0.4 > done["at"] + 0.05]
+    assert late and all(x == pytest.approx(24.0, abs=0.01) for x in late), (late, fitted)

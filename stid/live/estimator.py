@@ -4,11 +4,12 @@ run is done.
 
 The first fit is ``stid.fit.fitting.fit`` itself (the one path of every command). Each
 later one is the same output-error fit (``fit_time``) started from the previous estimate
-instead of a multistart, with each output weighted by the previous residual level:
-``stid fit`` finds those weights by refitting once with the levels its first solve left
-(maximum likelihood); across updates the weights are refined the same way, one update
-at a time, on data that grew by a few seconds. That halves an update's solver work, and
-the optimum is the same (tests/test_live.py compares it with ``stid fit`` on the file at
+instead of a multistart, with each output weighted by the previous residual level and
+stopped once statistically at the optimum (``settle``): ``stid fit`` finds those weights by
+refitting once with the levels its first solve left (maximum likelihood), and stops its
+refit by the same rule; across updates the weights are refined the same way, one update at
+a time, on data that grew by a few seconds. That saves an update the first solve, and the
+optimum is the same (tests/test_live.py compares it with ``stid fit`` on the file at
 that moment). The intervals are ``stid fit``'s (noise, block jackknife, geometry
 allowance).
 """
@@ -74,6 +75,7 @@ class Update:
     finished: bool = False
     converged: bool = True  # the fit's verdict (stid.fit.convergence): an optimum, or not
     cpu_s: float = 0.0  # CPU seconds of this update (reading the file included)
+    timing: dict = field(default_factory=dict)  # CPU seconds of its parts: read, fit, lacking, map
     wall: float = field(default_factory=time.time)
 
     def to_json(self) -> dict:
@@ -85,6 +87,7 @@ class Update:
                 "history": [{"seconds": round(s, 2), "percent": {k: _finite(v) for k, v in p.items()}}
                             for s, p in self.history],
                 "targets_from": self.targets_from, "finished": self.finished, "converged": self.converged, "cpu_s": round(self.cpu_s, 3),
+                "timing": {k: round(v, 3) for k, v in self.timing.items()},
                 "wall": self.wall}
 
 
@@ -101,6 +104,10 @@ class Estimator:
         self.vehicle = vehicle
         self.model_name = model_name
         self.model = Model(model_name, vehicle)  # a misspelt model is refused before any data comes
+        # imported now, not in the first update that needs them: scipy.signal (the plan's spectra)
+        # costs half a second of CPU to import, once per process
+        import stid.crlb  # noqa: F401
+        import stid.plan  # noqa: F401
         self.targets = targets
         self.targets_from = targets_from
         self.seq = 0
@@ -114,10 +121,17 @@ class Estimator:
         self.seq += 1
         up = Update(self.seq, path, self.model_name, seconds=snap.seconds, state=list(snap.state),
                     events=list(snap.events), targets_from=self.targets_from, finished=snap.finished)
+        up.timing["read"] = snap.read_s
         if snap.runs:
+            t = time.process_time()
             self._fit(snap.runs, up)
+            up.timing["fit"] = time.process_time() - t
+            t = time.process_time()
             up.lacking = lacks.lacking(snap.runs, self.last_fit if up.params else None, self.model, up.params)
+            up.timing["lacking"] = time.process_time() - t
+            t = time.process_time()
             up.excitation = excitation.speed_frequency_map(snap.runs)
+            up.timing["map"] = time.process_time() - t
         if up.params:
             self.history.append((up.seconds, {p.name: p.percent for p in up.params}))
         up.history = list(self.history)
@@ -144,7 +158,7 @@ class Estimator:
                 res = fit(runs, self.vehicle, self.model_name, "time")
             else:
                 res = fit_time(self.model, stretches, init=self._start, multistart=False, intervals="model-error",
-                               sigma=self._sigma)
+                               sigma=self._sigma, settle=True)
         except StidError as e:
             up.state.append(f"the fit failed on the data so far: {e}")
             return

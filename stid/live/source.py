@@ -48,6 +48,7 @@ class Source:
         self._last = Snapshot(state=[f"waiting for {self.path} to appear"])
         self._last_growth = time.monotonic()
         self._samples = -1
+        self._chunks: dict = {}  # what the file's chunks held at earlier reads (they never change)
 
     def poll(self) -> Snapshot:
         sig = _signature(self.path)
@@ -99,7 +100,7 @@ class Source:
 
         snap = Snapshot()
         try:
-            log = read_log(self.path)
+            log = read_log(self.path, self._chunks)
         except HostError as e:
             snap.state.append(f"{self.path.name} is not readable yet ({_first_sentence(e)}); trying again")
             return snap
