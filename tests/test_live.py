@@ -479,3 +479,40 @@ def test_an_update_slower_than_the_data_skips_ahead_to_the_newest(car, tmp_path,
     # read) is on all the data: none works through a backlog of older states
     late = [u["seconds"] for u in ups if u["wall"] - 0.4 > done["at"] + 0.05]
     assert late and all(x == pytest.approx(24.0, abs=0.01) for x in late), (late, fitted)
+
+
+def test_a_ros2_bag_being_recorded_is_read_up_to_its_last_chunk_and_ends_as_stid_fit(tmp_path):
+    """``ros2 bag record`` (MCAP storage) writes BAG/BAG_0.mcap chunk by chunk, and the file's
+    end and the bag's metadata.yaml only when it stops; until then no ROS reader opens it.
+    The view reads its complete chunks as they come; on the finished bag its numbers are
+    stid fit's. (The car: tests/ros_data.py, plain physics; chunks as libmcap writes them.)"""
+    import ros_data as rd
+
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+    from stid.vehicle_file import load_vehicle
+
+    drive = rd.drive(40.0, seed=2)
+    written = rd.as_libmcap_writes(rd.ros2_mcap(rd.write_bag(drive, tmp_path / "bag")), tmp_path / "lib.mcap",
+                                   chunk_size=64 * 1024)
+    car = rd.vehicle_toml(tmp_path / "car.toml")
+    vehicle = load_vehicle(car)
+    data = written.read_bytes()
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    growing = rec / "rec_0.mcap"
+    src = Source(rec, vehicle)
+    est = Estimator(vehicle, "bicycle", {}, "test")
+    seconds = []
+    for frac in (0.5, 0.8):
+        growing.write_bytes(data[:int(frac * len(data))])
+        up = est.update(src.poll(), "rec")
+        assert up.params and any("being recorded" in s for s in up.state), up.state
+        seconds.append(up.seconds)
+    assert seconds[1] > seconds[0] + 5
+    growing.write_bytes(data)  # recording stopped: the file has its end (rosbag2 then writes metadata.yaml)
+    up = est.update(src.poll(), "rec")
+    ref = _stid_fit_json(growing, car)["params"]
+    for p in up.params:
+        lo, hi = ref[p.name]["ci95"]
+        assert abs(p.value - ref[p.name]["value"]) <= 0.05 * 0.5 * (hi - lo), (p, ref[p.name])

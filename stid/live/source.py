@@ -49,6 +49,7 @@ class Source:
         self._last_growth = time.monotonic()
         self._samples = -1
         self._chunks: dict = {}  # what the file's chunks held at earlier reads (they never change)
+        self._tmp = None  # a directory for the readable copy of a ROS 2 bag being recorded
 
     def poll(self) -> Snapshot:
         sig = _signature(self.path)
@@ -83,16 +84,37 @@ class Source:
         return self._read_stid_log()
 
     def _read_other(self) -> Snapshot:
-        """A ROS bag (or a CSV): the loader's runs once it can read them."""
+        """A ROS bag (or a CSV): the loader's runs once it can read them; a ROS 2 bag still
+        being recorded through a finished copy of its complete chunks."""
+        from stid.live.ros_recording import being_recorded, readable_copy
         from stid.load import load_runs
 
+        path = self.path
+        inside = sorted(path.glob("*.mcap")) if path.is_dir() and not (path / "metadata.yaml").exists() else []
+        if len(inside) == 1:  # a bag directory whose metadata rosbag2 has not written yet: its one file
+            path = inside[0]
+        recording = being_recorded(path)
+        if recording is not None:
+            if self._tmp is None:
+                import tempfile
+
+                self._tmp = tempfile.TemporaryDirectory(prefix="stid-live-")
+            path = Path(self._tmp.name) / recording.name
+            if not readable_copy(recording, path):
+                return Snapshot(state=[f"{recording.name}: no complete chunk yet (ros2 bag record writes them "
+                                       "as it goes); waiting"])
         try:
-            runs = load_runs([self.path], self.vehicle)
+            runs = load_runs([path], self.vehicle)
         except (StidError, HostError) as e:
             return Snapshot(state=[f"{self.path.name} is not readable yet ({_first_sentence(e)}); trying again"])
         except Exception as e:  # noqa: BLE001 -- a bag half written can break its reader anywhere
             return Snapshot(state=[f"{self.path.name} is not readable yet ({type(e).__name__}: {e}); trying again"])
-        return _with_runs(Snapshot(), runs)
+        snap = _with_runs(Snapshot(), runs)
+        if recording is not None:
+            for r in runs:
+                r.name = r.name.replace(path.name, recording.name)
+            snap.state.append(f"a ROS 2 bag being recorded: read up to its last complete chunk")
+        return snap
 
     def _read_stid_log(self) -> Snapshot:
         from host.mcap_read import read_log
