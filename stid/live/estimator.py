@@ -87,7 +87,7 @@ class Update:
                 "history": [{"seconds": round(s, 2), "percent": {k: _finite(v) for k, v in p.items()}}
                             for s, p in self.history],
                 "targets_from": self.targets_from, "finished": self.finished, "converged": self.converged, "cpu_s": round(self.cpu_s, 3),
-                "timing": {k: round(v, 3) for k, v in self.timing.items()},
+                "timing": {k: _finite(round(v, 3)) for k, v in self.timing.items()},
                 "wall": self.wall}
 
 

@@ -13,7 +13,6 @@ one last update on the finished file, then the view ends.
 from __future__ import annotations
 
 import json
-import math
 import queue
 import signal
 import sys
@@ -128,7 +127,7 @@ def _say(view, text: str, json_lines: bool) -> None:
 def _show(view, server, up, json_lines: bool, stream) -> None:
     doc = None
     if server is not None or json_lines:
-        doc = _clean(up.to_json())
+        doc = up.to_json()  # (every number in it is finite or null)
     if server is not None:
         server.publish(doc)
     if json_lines:
@@ -136,14 +135,3 @@ def _show(view, server, up, json_lines: bool, stream) -> None:
         stream.flush()
     else:
         view.show(up)
-
-
-def _clean(x):
-    """JSON every parser reads: a value that is not a number is null."""
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    return x
