@@ -26,6 +26,7 @@ from host import units
 from host.errors import HostError
 from host.mcap_read import read_log
 from stid import segments
+from stid.convert import mounting_from_gravity
 from stid.errors import InputError
 from stid.output_paths import refuse_existing
 from stid.vehicle_file import Vehicle, load_vehicle
@@ -65,7 +66,7 @@ def standstill(path, vehicle: Vehicle) -> dict:
         if abs(norm - G) > 0.1 * G:
             raise InputError(f"{path}: the accelerometer reads {norm:.2f} m/s^2 at rest instead of "
                              f"{G} m/s^2: wrong supply voltage or sensor part in HELLO?")
-        roll, pitch = _mounting(np.array([gx, gy, gz]))
+        roll, pitch = mounting_from_gravity(np.array([gx, gy, gz]))
         out["mount_roll"], out["mount_pitch"] = roll, pitch
         out["accel_offset"] = [0.0, 0.0, float(norm - G)]
         notes.append(f"mounting roll {math.degrees(out['mount_roll']):+.2f} deg, pitch "
@@ -105,16 +106,6 @@ def is_ros(path, vehicle: Vehicle) -> bool:
     from stid.ros import bag, topic_files
 
     return bool(bag.kind_of(path)) or (Path(path).is_dir() and topic_files.names_files(vehicle.ros))
-
-
-def _mounting(g_sensor: np.ndarray) -> tuple[float, float]:
-    """Roll and pitch (as stid.convert applies them) that turn gravity onto body z."""
-    from scipy.optimize import least_squares
-
-    from stid.convert import mount_rotation
-
-    res = least_squares(lambda a: (mount_rotation(a[0], a[1]) @ g_sensor)[:2], [0.0, 0.0])
-    return float(res.x[0]), float(res.x[1])
 
 
 def steering_from_circles(paths, vehicle: Vehicle) -> dict:

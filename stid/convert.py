@@ -147,3 +147,11 @@ def _fill_lost_pulses(fall: np.ndarray, cmd: np.ndarray):
     c2 = np.concatenate([cmd] + add_c)
     o = np.argsort(f2, kind="stable")
     return f2[o], c2[o]
+
+
+def mounting_from_gravity(g_sensor: np.ndarray) -> tuple[float, float]:
+    """Roll and pitch (as stid.convert applies them) that turn gravity onto body z."""
+    from scipy.optimize import least_squares
+
+    res = least_squares(lambda a: (mount_rotation(a[0], a[1]) @ g_sensor)[:2], [0.0, 0.0])
+    return float(res.x[0]), float(res.x[1])

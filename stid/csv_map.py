@@ -19,27 +19,25 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from stid.errors import InputError
+from stid.errors import InputError, unknown_key
+from stid.run import OPTIONAL, REQUIRED
 
 DELIMITERS = (",", ";", "\t", "|")
 _NAMES = {",": "','", ";": "';'", "\t": "tab", "|": "'|'", r"\s+": "spaces"}
 
 
 def contract_columns() -> tuple:
-    from stid.load import OPTIONAL, REQUIRED
-
     return REQUIRED + OPTIONAL
 
 
 def check_table(table: dict, where: str) -> None:
     """Raise InputError for a ``[csv]`` key that is not a contract column, or a value that is
     not a column name or expression."""
-    from stid.vehicle_file import _unknown
 
     known = contract_columns()
     for key, value in table.items():
         if key not in known:
-            raise _unknown(where, "column", key, list(known), "[csv]")
+            raise unknown_key(where, "column", key, list(known), "[csv]")
         if not isinstance(value, str) or not value.strip():
             raise InputError(f"{where}: [csv] {key} must be a source column or an expression in quotes, e.g. "
                              f"{key} = \"-imu_{key}\" or {key} = \"{key}_raw * 0.001\", got {value!r}")

@@ -14,11 +14,9 @@ from host import units
 from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
 from stid.ros import bag as ros_bag, topic_files
-from stid.run import Run
+from stid.run import OPTIONAL, REQUIRED, Run
 from stid.vehicle_file import Vehicle, default_vehicle
 
-REQUIRED = ("t", "steer", "ay", "r", "vx")
-OPTIONAL = ("ax", "beta", "delta_cmd", "w_fl", "w_fr", "w_rl", "w_rr")
 # Lost frames up to this long are marked (``Run.valid``) and left out of every cost, the
 # model running through them; a longer gap splits the run (the input there is unknown).
 MAX_FILLED_GAP_S = 0.1

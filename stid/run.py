@@ -7,6 +7,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+# the CSV contract's columns (DESIGN.md): SI units, ISO 8855 axes
+REQUIRED = ("t", "steer", "ay", "r", "vx")
+OPTIONAL = ("ax", "beta", "delta_cmd", "w_fl", "w_fr", "w_rl", "w_rr")
+
 @dataclass
 class Run:
     """One stretch of driving.

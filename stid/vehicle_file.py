@@ -46,13 +46,12 @@ stid.ros.topic_map. Any other key or table is an error that names it and the nea
 
 from __future__ import annotations
 
-import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from stid.errors import InputError
+from stid.errors import InputError, unknown_key
 
 DEFAULT_STEER_CENTER_US = 1500.0
 DEFAULT_STEER_US_PER_RAD = 500.0 / math.radians(25.0)  # a typical RC servo: +-500 us for +-25 deg
@@ -111,13 +110,6 @@ PARAM_SPEC_KEYS = ("init", "min", "max")
 _NONNEGATIVE = ("accel_bandwidth_hz", "gyro_bandwidth_hz")  # Hz; 0 = no filter
 
 
-def _unknown(where, what, key, known, inside="") -> InputError:
-    near = difflib.get_close_matches(key, known, n=1)
-    todo = f"did you mean '{near[0]}'?" if near else "rename or remove it"
-    inside = f" in {inside}" if inside else ""
-    return InputError(f"{where}: unknown {what} '{key}'{inside}: {todo} (known {what}s: {', '.join(known)})")
-
-
 def _check_keys(doc, where) -> None:
     for key, value in doc.items():
         if key in TABLES:
@@ -126,14 +118,14 @@ def _check_keys(doc, where) -> None:
             continue
         if key not in TOP_KEYS:
             if isinstance(value, dict):
-                raise _unknown(where, "table", f"[{key}]", [f"[{t}]" for t in TABLES])
-            raise _unknown(where, "key", key, list(TOP_KEYS) + [f"[{t}]" for t in TABLES])
+                raise unknown_key(where, "table", f"[{key}]", [f"[{t}]" for t in TABLES])
+            raise unknown_key(where, "key", key, list(TOP_KEYS) + [f"[{t}]" for t in TABLES])
     for table, keys in TABLES.items():
         if keys is None or table not in doc:
             continue
         for key, value in doc[table].items():
             if key not in keys:
-                raise _unknown(where, "key", key, list(keys), f"[{table}]")
+                raise unknown_key(where, "key", key, list(keys), f"[{table}]")
             if key == "accel_offset":
                 ok = isinstance(value, list) and len(value) == 3 and all(_is_number(x) for x in value)
                 if not ok:
@@ -184,13 +176,13 @@ def _check_params(params: dict, where) -> None:
     known = _known_params()
     for name, spec in params.items():
         if name not in known:
-            raise _unknown(where, "parameter", name, known, "[params]")
+            raise unknown_key(where, "parameter", name, known, "[params]")
         if not isinstance(spec, dict):
             raise InputError(f"{where}: [params] {name} must be a table, e.g. {name} = {{ init = 1.0, min = 0.1, "
                              f"max = 10.0 }}, got {spec!r}")
         for key, value in spec.items():
             if key not in PARAM_SPEC_KEYS:
-                raise _unknown(where, "key", key, list(PARAM_SPEC_KEYS), f"[params] {name}")
+                raise unknown_key(where, "key", key, list(PARAM_SPEC_KEYS), f"[params] {name}")
             if not _is_number(value):
                 raise InputError(f"{where}: [params] {name}.{key} must be a number, got {value!r}")
 

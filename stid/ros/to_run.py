@@ -262,7 +262,6 @@ def _tilt(acc, vx, rate, vehicle, notes):
     [rad] as ``stid calibrate`` writes them (None without a stand-still or gravity). Said with
     the [sensors] lines that undo it when none are declared."""
     from stid import segments
-    from stid.calibrate import _mounting
 
     still = segments.still_mask(vx, rate)
     if still.sum() < 0.5 * rate:
@@ -270,7 +269,7 @@ def _tilt(acc, vx, rate, vehicle, notes):
     g = acc[:, still].mean(axis=1)
     if abs(np.linalg.norm(g) - G) > 0.2 * G:
         return None  # gravity removed (or not only gravity): nothing to tell the tilt by
-    roll, pitch = _mounting(g)
+    roll, pitch = convert.mounting_from_gravity(g)
     found = {"mount_roll": roll, "mount_pitch": pitch}
     sensors = vehicle.sensors if vehicle is not None else {}
     tilt = np.degrees(np.arctan2(np.hypot(g[0], g[1]), g[2]))

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from stid.errors import InputError
+from stid.errors import InputError, unknown_key
 from stid.ros.message_types import ACKERMANN, FLOAT64, IMU, ODOMETRY
 
 KEYS = ("imu", "odometry", "steering", "imu_axes", "accel_unit", "gyro_unit", "stamps", "rate_hz", "fields")
@@ -50,11 +50,10 @@ ROLE_WORDS = {"imu": "IMU", "odometry": "odometry", "steering": "steering comman
 
 def check_table(table: dict, where: str) -> None:
     """Raise InputError for a key or value of ``[ros]`` that stid would not use."""
-    from stid.vehicle_file import _unknown
 
     for key, value in table.items():
         if key not in KEYS:
-            raise _unknown(where, "key", key, list(KEYS), "[ros]")
+            raise unknown_key(where, "key", key, list(KEYS), "[ros]")
         if key in TOPIC_KEYS:
             if not isinstance(value, str) or not value:
                 raise InputError(f"{where}: [ros] {key} must be a topic name, e.g. {key} = "
@@ -75,14 +74,13 @@ def check_table(table: dict, where: str) -> None:
 def _check_fields(fields, where) -> None:
     """[ros.fields] (topic CSVs, stid.ros.topic_files): message field -> column or expression."""
     from stid.ros.message_types import FIELDS
-    from stid.vehicle_file import _unknown
 
     known = ["stamp"] + sorted({f for fs in FIELDS.values() for f in fs if not f.startswith("header.")})
     if not isinstance(fields, dict):
         raise InputError(f"{where}: [ros] fields must be a table ([ros.fields]), got {fields!r}")
     for key, value in fields.items():
         if key not in known:
-            raise _unknown(where, "field", key, known, "[ros.fields]")
+            raise unknown_key(where, "field", key, known, "[ros.fields]")
         if not isinstance(value, str) or not value.strip():
             raise InputError(f"{where}: [ros.fields] \"{key}\" must be a column name or expression in quotes, "
                              f"got {value!r}")
