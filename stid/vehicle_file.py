@@ -164,7 +164,7 @@ def _check_targets(targets: dict, where) -> dict:
     out = {}
     for name, value in targets.items():
         if name not in known:
-            raise _unknown(where, "parameter", name, known, "[targets]")
+            raise unknown_key(where, "parameter", name, known, "[targets]")
         out[name] = parse_percent(value, f"{where}: [targets] {name}")
     return out
 
