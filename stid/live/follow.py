@@ -55,6 +55,7 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
             server = LiveServer(web_port)
             _say(view, f"stid live: the live view is at {server.url} (this machine only)", json_lines)
         last = None
+        shown = None
         logger_ended_at = None
         while True:
             t0 = time.monotonic()
@@ -73,22 +74,27 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                             "(the fit then misses less)")
                     if line not in up.lacking:
                         up.lacking = up.lacking + [line]
+            said = (up.seq, tuple(up.state), up.diagnosis, tuple(up.lacking), up.done)
+            if said != shown:  # (an unchanged file and nothing new to say: nothing is shown again)
+                _show(view, server, up, json_lines, stream)
+                shown = said
             last = up
-            _show(view, server, up, json_lines, stream)
             while not msgs.empty():
                 _say(view, msgs.get(), json_lines)
             if not follow or stop.is_set():
                 break
-            if snap.finished and (from_logger is False or logger_done.is_set()):
+            if snap.finished and (not from_logger or logger_done.is_set()):
                 break
-            if logger_done.is_set():
+            pace = every
+            if logger_done.is_set():  # the logger has ended: its file is finished any moment now
                 logger_ended_at = logger_ended_at or time.monotonic()
                 if time.monotonic() - logger_ended_at > LAST_WAIT_S:
                     break
+                pace = min(every, 0.2)
             # wait for the next tick, showing the logger's lines as they come
             while not stop.is_set():
-                left = every - (time.monotonic() - t0)
-                if left <= 0 or (logger_done.is_set() and msgs.empty() and not snap.finished):
+                left = pace - (time.monotonic() - t0)
+                if left <= 0:
                     break
                 try:
                     _say(view, msgs.get(timeout=min(left, 0.25)), json_lines)

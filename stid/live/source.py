@@ -128,6 +128,10 @@ class Source:
             return snap
         snap.finished = "stid.stats" in log.metadata
         snap.link = log.stats or {}
+        lost = snap.link.get("lost_frames", 0) if isinstance(snap.link, dict) else 0
+        if lost:
+            snap.state.append(f"the link lost {lost} frames so far (left out of the fit, never guessed): a loose "
+                              "cable or a noisy radio link?")
         t0 = int(log.samples["t_host_ns"][0]) if len(log.samples) else None
         for ns, doc in log.events:
             if doc.get("event") in _SHOWN_EVENTS:
