@@ -369,9 +369,9 @@ class Logger:
                 return False
             if o.reconnect_timeout is not None and waited > o.reconnect_timeout:
                 self.stop_reason = "port gone"
-                status.close()
-                print(f"{o.port} did not come back within {o.reconnect_timeout:.0f} s; "
-                      f"the file is complete up to the unplug", file=sys.stderr)
+                # (through _say: a live view shows it above its table instead of drawing over it)
+                self._say(f"{o.port} did not come back within {o.reconnect_timeout:.0f} s; "
+                          f"the file is complete up to the unplug")
                 return False
             status.update(f"{self.path.name}  port unplugged for {waited:4.1f} s, waiting for {o.port} ...")
             try:
