@@ -336,6 +336,10 @@ def _cmd_live(args) -> int:
         raise InputError(f"--every {args.every:g}: give the seconds between updates, above 0 (e.g. 2)")
     if args.check:  # stid-log --live checks the view's arguments before it opens the port
         return 0
+    if not args.follow and not Path(args.run).exists():  # (followed, it may not be there yet)
+        from stid.errors import InputError
+
+        raise InputError(f"{args.run} does not exist (to wait for a file a logger is about to write, add --follow)")
     return live(args.run, vehicle, args.model, targets, where, follow=args.follow, every=args.every,
                 web_port=args.web, json_lines=args.json, from_logger=args.from_logger,
                 diagnose=not args.no_diagnose)

@@ -309,6 +309,7 @@ def test_user_errors_end_in_one_line_and_a_non_zero_exit(tmp_path):
         ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--target", "Iz=200%"], "below 100"),
         ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--model", "bicycle+warp"], "warp"),
         ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--every", "0"], "above 0"),
+        ([tool("stid"), "live", str(tmp_path / "x.mcap"), "--vehicle", str(car)], "add --follow"),
         ([tool("stid-log"), "/dev/null", "--live"], "--vehicle"),
         ([tool("stid-log"), "/dev/null", "--target", "Iz=3%"], "add --live"),
         ([tool("stid-log"), "/dev/null", "--live", "--vehicle", str(car), "--target", "Q=1"], "no parameter Q"),
