@@ -517,3 +517,30 @@ def test_a_ros2_bag_being_recorded_is_read_up_to_its_last_chunk_and_ends_as_stid
     for p in up.params:
         lo, hi = ref[p.name]["ci95"]
         assert abs(p.value - ref[p.name]["value"]) <= 0.05 * 0.5 * (hi - lo), (p, ref[p.name])
+
+
+def test_the_excitation_map_puts_the_steer_where_it_was_driven():
+    """A 3 Hz sine steer at 4 m/s for 20 s, then a 1 Hz one at 6 m/s for 10 s: the map's
+    power sits in the (4 m/s, 3 Hz) and (6 m/s, 1 Hz) cells, in proportion to the seconds and
+    the sines' power (both 1 deg amplitude: twice the seconds, twice the power)."""
+    from stid.live.excitation import WINDOW_S, speed_frequency_map
+    from stid.run import Run
+
+    fs = 200.0
+    t = np.arange(int(30 * fs)) / fs
+    slow = t < 20
+    steer = np.radians(np.where(slow, np.sin(2 * np.pi * 3 * t), np.sin(2 * np.pi * 1 * t)))
+    vx = np.where(slow, 4.0, 6.0)
+    run = Run(name="sines", t=t, steer=steer, ay=np.zeros_like(t), r=np.zeros_like(t), vx=vx, meta={"fs": fs})
+    m = speed_frequency_map([run])
+    power = np.array(m["power"])
+    speeds, freqs = np.array(m["speeds"]), np.array(m["freqs"])
+    row4 = int(np.flatnonzero(speeds == 4.0)[0])
+    row6 = int(np.flatnonzero(speeds == 6.0)[0])
+    assert freqs[np.argmax(power[row4])] == pytest.approx(3.0, abs=0.5)
+    assert freqs[np.argmax(power[row6])] == pytest.approx(1.0, abs=0.5)
+    # (a window across the change of speed counts at its mean speed, in neither row)
+    assert m["seconds"][row4] == pytest.approx(20.0, abs=WINDOW_S)
+    assert m["seconds"][row6] == pytest.approx(10.0, abs=WINDOW_S)
+    # a sine of amplitude A holds A^2/2 of power: the 4 m/s row holds twice the 6 m/s row's
+    assert power[row4].sum() / power[row6].sum() == pytest.approx(2.0, rel=0.1)

@@ -156,3 +156,23 @@ def test_under_full_cpu_load_the_logger_loses_no_more_with_the_live_view(tmp_pat
     lines = "\n".join(r["line"] for r in results.values())
     print(lines)
     assert loss["live"] <= max(a, b) + abs(a - b), lines
+
+
+def test_ctrl_c_stops_the_logger_and_the_view_ends_on_the_finished_file(tmp_path):
+    """Ctrl-C (SIGINT) reaches the logger; the view, in a session of its own, is not
+    stopped by it: the logger finishes the file, and the view's last update is on it."""
+    import signal
+
+    sim = Sim("--duration", 60, "--speed", 4)
+    try:
+        lg = live_logger(sim.port, tmp_path / "run.mcap", "--every", 1)
+        time.sleep(10)
+        lg.send_signal(signal.SIGINT)
+        out, err = lg.communicate(timeout=90)
+    finally:
+        sim.proc.kill()
+        sim.proc.communicate()
+    assert lg.returncode == 0, err
+    blocks = out.split("] stid live ")
+    assert len(blocks) >= 3 and "[file finished]" in blocks[-1], out[-2000:]
+    assert summary(err)["line"].endswith("stopped by Ctrl-C"), err
