@@ -29,6 +29,7 @@ PLAN_S = 20.0  # seconds of each option's planned spectrum (information per seco
 MAX_S = 3600.0  # more than an hour of one thing is not a suggestion
 LINEAR_AY = 0.4 * 9.81  # m/s^2: beyond about 0.4 g the tyres leave their linear range
 STILL_S = 2.0
+NOISE_S = 60.0  # seconds of residual the noise spectrum is estimated from (the latest)
 
 
 def lacking(runs, res, model, params: list) -> list[str]:
@@ -113,10 +114,15 @@ def _data_terms(res, model, params, names, noise):
     """(A, B) of the output-error fit on the data so far: each fitted stretch's own steer."""
     from stid.crlb import oe_terms
 
+    from scipy.fft import next_fast_len
+
     k = len(names)
     A, B = np.zeros((k, k)), np.zeros((k, k))
     for p in res.predictions:
         u = np.asarray(p.steer)[p.keep]
+        # the DFT of a length with a large prime factor is 30x slower: a few samples less
+        m = next_fast_len(int(0.98 * len(u)), real=True)
+        u = u[len(u) - min(m, len(u)):]
         u = u - u.mean()
         dt = float(p.t[1] - p.t[0])
         f, U = np.fft.rfftfreq(len(u), dt), np.fft.rfft(u)
@@ -168,7 +174,7 @@ def _best_addition(runs, res, model, short) -> str:
 
     params = res.all_params()
     names = list(res.names)
-    noise = residual_model(res.predictions)
+    noise = residual_model(_latest(res.predictions, NOISE_S))
     s = summary(runs, res)
     A0, B0 = _data_terms(res, model, params, names, noise)
     idx = [names.index(p.name) for p in short]
@@ -191,6 +197,25 @@ def _best_addition(runs, res, model, short) -> str:
         return (f"{which}: not even an hour more of any driving the plan weighs (same, another speed, faster or "
                 "larger steer) reaches the target; the target is beyond this car and these sensors")
     return _words(label, m, s, best_s, which)
+
+
+def _latest(predictions, seconds: float) -> list:
+    """The last ``seconds`` of the fitted stretches: enough for the residual's spectrum (4 s
+    Welch segments), which a whole long run only averages more finely at more cost."""
+    from dataclasses import replace as copy_with
+
+    out, left = [], seconds
+    for p in reversed(predictions):
+        n = len(p.t)
+        take = min(n, int(round(left / float(p.t[1] - p.t[0]))))
+        if take < n:
+            sl = slice(n - take, n)
+            p = copy_with(p, t=p.t[sl], steer=np.asarray(p.steer)[sl], y=p.y[sl], yhat=p.yhat[sl], keep=p.keep[sl])
+        out.append(p)
+        left -= take * float(p.t[1] - p.t[0])
+        if left <= 0:
+            break
+    return out[::-1]
 
 
 def _drivable(model, params, m, check_grip) -> bool:
