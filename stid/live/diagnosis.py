@@ -42,8 +42,10 @@ class BackgroundDiagnosis:
             self.effect = named_effect(out) if self.text else self.effect
             self.tried_at = self.running_at
             self.proc = None
-        due = driving_s >= MIN_DRIVING_S and (self.tried_at == 0 or driving_s >= GROWTH * self.tried_at
-                                              or (finished and driving_s > self.tried_at))
+        # (none started on a finished file: the view ends after its last update; `stid diagnose`
+        # on the file is the command for the whole run)
+        due = (not finished and driving_s >= MIN_DRIVING_S
+               and (self.tried_at == 0 or driving_s >= GROWTH * self.tried_at))
         if self.proc is None and due:
             self._start(driving_s)
         if self.text is None:
