@@ -32,20 +32,23 @@ MASS, A, B = 9.31, 0.2326, 0.2874
 VEHICLE = f'name = "physics car"\nmass = {MASS}\na = {A}\nb = {B}\n'
 
 
-def bicycle_csv(path: Path, seconds: float, speeds=(4.0,), seed: int = 0, fs: float = 500.0,
+def bicycle_csv(path: Path, seconds, speeds=(4.0,), seed: int = 0, fs: float = 500.0,
                 steer_rms_deg: float = 2.0) -> None:
     """The linear single track from its equations, m (vy' + vx r) = Fyf + Fyr and
     Iz r' = a Fyf - b Fyr with Fyf = Cf (delta - (vy + a r)/vx), Fyr = -Cr (vy - b r)/vx,
-    driven by 4 Hz band-limited random steer; ay = (Fyf + Fyr)/m. Each speed for
-    ``seconds``; white noise of the ADXL335/LISY300AL's size on ay and r."""
+    driven by 4 Hz band-limited random steer; ay = (Fyf + Fyr)/m. ``seconds`` at each of
+    ``speeds`` in turn (one number: the same for each), the state carried across a change of
+    speed; white noise of the ADXL335/LISY300AL's size on ay and r."""
     from scipy import signal as sg
 
     rng = np.random.default_rng(seed)
     cols = []
     t0 = 0.0
+    state = np.zeros(2)
     sos = sg.butter(6, 4.0, fs=fs, output="sos")
-    for vx in speeds:
-        n = int(seconds * fs)
+    durations = [seconds] * len(speeds) if np.isscalar(seconds) else list(seconds)
+    for vx, dur in zip(speeds, durations):
+        n = int(dur * fs)
         steer = sg.sosfiltfilt(sos, rng.standard_normal(n + 2000))[1000:-1000]
         steer *= math.radians(steer_rms_deg) / steer.std()
         Cf, Cr, Iz = TRUTH["Cf"], TRUTH["Cr"], TRUTH["Iz"]
@@ -56,7 +59,8 @@ def bicycle_csv(path: Path, seconds: float, speeds=(4.0,), seed: int = 0, fs: fl
         C = np.array([Amat[0] + [0.0, vx], [0.0, 1.0]])
         D = np.array([[Bmat[0, 0]], [0.0]])
         t = np.arange(n) / fs
-        _, y, _ = sg.lsim((Amat, Bmat, C, D), steer, t)
+        _, y, x = sg.lsim((Amat, Bmat, C, D), steer, t, X0=state)
+        state = x[-1]
         ay = y[:, 0] + 0.05 * rng.standard_normal(n)
         r = y[:, 1] + 0.005 * rng.standard_normal(n)
         cols.append(np.column_stack([t0 + t, steer, ay, r, np.full(n, vx)]))
@@ -171,27 +175,68 @@ def test_done_once_every_target_is_reached_and_not_before(car, tmp_path):
     assert up.lacking, "a target not reached says what to drive"
 
 
-def test_more_of_the_same_is_asked_for_in_the_seconds_information_needs(car, tmp_path):
-    """One speed, white noise, an exact model: information grows with time, so Iz's
-    interval shrinks as 1/sqrt(seconds). Asked for half the present interval, the view asks
-    for about 3 times the driving so far of something; its own words say what and how long."""
+def _asked(line: str):
+    """(what, seconds, speed or None) from a 'still lacking' line."""
+    import re
+
+    m = re.search(r"about ([\d.]+) (s|min)", line)
+    seconds = float(m.group(1)) * (60 if m.group(2) == "min" else 1)
+    speed = re.search(r"about ([\d.]+) m/s", line)
+    return line.split(":")[0].split(",")[0], seconds, float(speed.group(1)) if speed else None
+
+
+def _halve_iz_and_drive_what_is_asked(car_dir, tmp_path, seed: int):
+    """30 s at 4 m/s; Iz's target set to half its interval; the seconds of what the view asks
+    for driven (the same physics, the state carried on); Iz's interval then / the target."""
     from stid.live.estimator import Estimator
     from stid.live.source import Source
 
-    run = tmp_path / "run.csv"
-    bicycle_csv(run, 30.0, seed=6)
-    est = Estimator(_vehicle(car), "bicycle", {}, "test")
-    first = est.update(Source(run, _vehicle(car)).poll(), run.name)
-    iz = next(p for p in first.params if p.name == "Iz")
+    first = tmp_path / f"first_{seed}.csv"
+    bicycle_csv(first, 30.0, seed=seed)
+    est = Estimator(_vehicle(car_dir), "bicycle", {}, "test")
+    iz = next(p for p in est.update(Source(first, _vehicle(car_dir)).poll()).params if p.name == "Iz")
     est.targets = {"Iz": iz.percent / 2}
-    up = est.update(Source(run, _vehicle(car)).poll(), run.name)
-    line = up.lacking[-1]
-    assert "Iz" in line and "s" in line, up.lacking
-    m = [float(w) for w in line.replace("about ", "").split() if w.replace(".", "").isdigit()]
-    assert m, line
-    if line.startswith("more of the same"):
-        # four times the information: three times the seconds driven so far (~25 s fitted)
-        assert 0.5 * 3 * up.driving_s <= m[0] <= 2 * 3 * up.driving_s, (line, up.driving_s)
+    up = est.update(Source(first, _vehicle(car_dir)).poll())
+    what, seconds, speed = _asked(up.lacking[-1])
+    assert what in ("a second speed", "more of the same"), up.lacking
+    both = tmp_path / f"both_{seed}.csv"
+    bicycle_csv(both, (30.0, seconds), speeds=(4.0, speed or 4.0), seed=seed)
+    after = Estimator(_vehicle(car_dir), "bicycle", {}, "test").update(Source(both, _vehicle(car_dir)).poll())
+    return next(p for p in after.params if p.name == "Iz").percent / (iz.percent / 2), up
+
+
+def test_what_is_asked_for_says_how_long_and_more_of_the_same_adds_information_linearly(car, tmp_path):
+    """One speed, an exact model: the view names an addition and its seconds. Its seconds
+    come from information that adds: more of the same driving, to halve an interval (four
+    times the information), takes three times the seconds fitted so far."""
+    from stid.live import lacks
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+
+    ratio, up = _halve_iz_and_drive_what_is_asked(car, tmp_path, seed=6)
+    assert 0.3 < ratio < 3.0, ratio  # (one seed: the interval's own spread; the slow test measures it)
+    run = tmp_path / "first_6.csv"
+    est = Estimator(_vehicle(car), "bicycle", {}, "test")
+    est.update(Source(run, _vehicle(car)).poll())
+    res, runs = est.last_fit, Source(run, _vehicle(car)).poll().runs
+    s = lacks.summary(runs, res)
+    names = list(res.names)
+    from stid.crlb import residual_model
+
+    A0, B0 = lacks._driven_terms(runs, est.model, res.all_params(), names, residual_model(res.predictions), s)
+    same = lacks._seconds_to_reach(A0, B0, A0 / s["seconds"], B0 / s["seconds"], [names.index("Iz")], [0.25])
+    assert same == pytest.approx(3 * s["seconds"], rel=0.03), (same, s["seconds"])
+
+
+@pytest.mark.slow
+def test_driving_what_is_asked_for_reaches_the_target(car, tmp_path):
+    """Over 12 seeds: after driving what the view asked for (its addition, its seconds), Iz's
+    printed interval is the target, in the median, to within 0.7-1.4x (measured on these
+    seeds: 0.88, each 0.65-1.23; a single run's interval spreads so around it: it is the
+    wider of two estimates, one the block jackknife's with 7 degrees of freedom)."""
+    ratios = [_halve_iz_and_drive_what_is_asked(car, tmp_path, seed)[0] for seed in range(40, 52)]
+    print("interval after / target:", np.round(ratios, 2), "median", np.median(ratios))
+    assert 0.7 <= float(np.median(ratios)) <= 1.4, ratios
 
 
 def test_a_second_speed_is_what_separates_servo_lag_from_tyre_relaxation(tmp_path):

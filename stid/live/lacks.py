@@ -4,13 +4,13 @@ Two kinds of lack:
 
 - facts of the data: no stand-still yet (the gyro's zero is then unknown), no driving yet;
 - what brings the parameters still short of their target there fastest. The information
-  the data so far carry is the output-error fit's (``stid.crlb.oe_terms`` on each fitted
-  stretch's own steer, at its speed, with the fit's residual spectrum as noise, as
-  ``stid plan --noise-from`` does). Each thing a driver can add (more of the same, a
-  second speed, faster steering, larger steer) is weighed by the information one second
-  of it adds (``stid.plan``'s random-steer spectrum), and the one that reaches every
-  target in the fewest seconds is named, with those seconds. The precision the fit
-  shows now is the anchor: the plan only scales it by the information added.
+  of the output-error fit (``stid.crlb.oe_terms``, with the fit's residual spectrum as
+  noise, as ``stid plan --noise-from`` does) is worked out for the driving so far (the
+  data's steer rms and bandwidth, for the seconds spent at each speed) and for one second
+  of each thing a driver can add (more of the same, a second speed, faster steering,
+  larger steer), all from ``stid.plan``'s random-steer spectrum; the one that reaches every
+  target in the fewest seconds is named, with those seconds. The precision the fit shows
+  now is the anchor: the plan only scales it by the information added.
 
 A model-error allowance in the interval (``stid fit``'s exact-geometry widening) does not
 shrink with more data: a parameter held up by it is told so, not sent driving.
@@ -30,6 +30,7 @@ MAX_S = 3600.0  # more than an hour of one thing is not a suggestion
 LINEAR_AY = 0.4 * 9.81  # m/s^2: beyond about 0.4 g the tyres leave their linear range
 STILL_S = 2.0
 NOISE_S = 60.0  # seconds of residual the noise spectrum is estimated from (the latest)
+SPEED_BIN = 0.5  # m/s: the driving so far, weighed per speed
 
 
 def lacking(runs, res, model, params: list) -> list[str]:
@@ -110,25 +111,31 @@ def _pooled_spectrum(pieces, fs, seg_s: float = 4.0):
     return f0, acc
 
 
-def _data_terms(res, model, params, names, noise):
-    """(A, B) of the output-error fit on the data so far: each fitted stretch's own steer."""
-    from stid.crlb import oe_terms
-
-    from scipy.fft import next_fast_len
+def _driven_terms(runs, model, params, names, noise, s) -> tuple:
+    """(A, B) of the driving so far as the plan sees it: the data's random steer (its rms and
+    bandwidth) for the seconds spent at each speed (bins of SPEED_BIN m/s). The additions are
+    weighed by the same model, so the driving so far and an addition compare like with like
+    (the plan's spectra are expected ones: a measured record's own DFT weighs the model-error
+    term differently, and mixing the two made a second speed look twice as good as it is)."""
+    from stid.fit.dataset import V_MOVING
+    from stid.plan import Manoeuvre
 
     k = len(names)
     A, B = np.zeros((k, k)), np.zeros((k, k))
-    for p in res.predictions:
-        u = np.asarray(p.steer)[p.keep]
-        # the DFT of a length with a large prime factor is 30x slower: a few samples less
-        m = next_fast_len(int(0.98 * len(u)), real=True)
-        u = u[len(u) - min(m, len(u)):]
-        u = u - u.mean()
-        dt = float(p.t[1] - p.t[0])
-        f, U = np.fft.rfftfreq(len(u), dt), np.fft.rfft(u)
-        a, b, _ = oe_terms(model, params, names, f, U, len(u), 1 / dt, float(p.vx), noise)
-        A += a
-        B += b
+    seconds = {}
+    for r in runs:
+        v = r.vx[r.vx > V_MOVING]
+        for b, n in zip(*np.unique(np.floor(v / SPEED_BIN).astype(int), return_counts=True)):
+            seconds[b] = seconds.get(b, 0.0) + n / r.fs
+    total = sum(seconds.values())
+    for b, sec in seconds.items():
+        if sec < 1.0:
+            continue
+        m = Manoeuvre((b + 0.5) * SPEED_BIN, max(s["amp"], math.radians(0.3)), s["bw"], PLAN_S)
+        a, bb = _option_terms(model, params, names, noise, m)
+        # the fitted seconds, shared out by the time spent at each speed
+        A += a * sec / total * s["seconds"]
+        B += bb * sec / total * s["seconds"]
     return A, B
 
 
@@ -176,7 +183,7 @@ def _best_addition(runs, res, model, short) -> str:
     names = list(res.names)
     noise = residual_model(_latest(res.predictions, NOISE_S))
     s = summary(runs, res)
-    A0, B0 = _data_terms(res, model, params, names, noise)
+    A0, B0 = _driven_terms(runs, model, params, names, noise, s)
     idx = [names.index(p.name) for p in short]
     need = [(p.target / p.percent) ** 2 for p in short]
     here = Manoeuvre(max(s["speed"], 1.0), max(s["amp"], math.radians(0.3)), s["bw"], PLAN_S)
