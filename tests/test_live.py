@@ -83,10 +83,17 @@ def _vehicle(car_dir):
 
 
 def _stid_fit_json(run: Path, vehicle: Path, model: str = "bicycle") -> dict:
-    out = subprocess.run([tool("stid"), "fit", str(run), "--vehicle", str(vehicle), "--model", model,
-                          "--method", "time", "--json"], capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    return json.loads(out.stdout)
+    """``stid fit RUN --method time --json``, the command's own function (a cold fit, with its
+    multistart; in this process only to spare the suite an interpreter start per call)."""
+    from contextlib import redirect_stdout
+
+    from stid.cli import main
+
+    out = io.StringIO()
+    with redirect_stdout(out):
+        rc = main(["fit", str(run), "--vehicle", str(vehicle), "--model", model, "--method", "time", "--json"])
+    assert rc == 0
+    return json.loads(out.getvalue())
 
 
 # -- the numbers are stid fit's ---------------------------------------------------------
@@ -105,7 +112,7 @@ def test_each_update_gives_what_stid_fit_gives_on_the_file_at_that_moment(car, t
     growing = tmp_path / "growing.csv"
     est = Estimator(_vehicle(car), "bicycle", {"Iz": 1.0}, "test")
     compared = 0
-    for frac in (0.35, 0.55, 0.75, 1.0):
+    for frac in (0.4, 0.7, 1.0):
         growing.write_text("".join(rows[:1 + int(frac * (len(rows) - 1))]))
         up = est.update(Source(growing, _vehicle(car)).poll(), growing.name)
         assert up.params, up.state
@@ -120,22 +127,20 @@ def test_each_update_gives_what_stid_fit_gives_on_the_file_at_that_moment(car, t
             # and the physics: the interval holds the car's value
             assert abs(p.value - TRUTH[p.name]) <= p.half95 * 1.05, (frac, p)
         compared += 1
-    assert compared == 4 and len(est.history) == 4
+    assert compared == 3 and len(est.history) == 3
 
 
-def test_a_growing_stid_log_read_up_to_its_last_chunk_matches_stid_fit(tmp_path):
+def test_a_growing_stid_log_read_up_to_its_last_chunk_matches_stid_fit(simdir, tmp_path):
     """What a reader sees of a file stid-log is writing is a byte prefix of it (flushed
     chunks, then a chunk cut anywhere): the live update on such a prefix is stid fit's on
-    the same bytes."""
+    the same bytes. (The simulated car with a servo lag, its real firmware, the session's run.)"""
+    from simdata import random_steer_pair
+
     from stid.live.estimator import Estimator
     from stid.live.source import Source
     from stid.vehicle_file import load_vehicle
 
-    run = tmp_path / "run.mcap"
-    r = subprocess.run([tool("stid-sim"), "--fast", "-o", str(run), "--duration", "40", "--seed", "4",
-                        "--speed-profile", "track", "--effects", "actuator_lag"], capture_output=True, text=True,
-                       timeout=300)
-    assert r.returncode == 0, r.stderr
+    run = random_steer_pair(simdir, ("actuator_lag",))[0]
     veh_path = Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml"
     vehicle = load_vehicle(veh_path)
     data = run.read_bytes()
@@ -248,7 +253,7 @@ def test_a_second_speed_is_what_separates_servo_lag_from_tyre_relaxation(tmp_pat
     from stid.vehicle_file import load_vehicle
 
     run = tmp_path / "one_speed.mcap"
-    r = subprocess.run([tool("stid-sim"), "--fast", "-o", str(run), "--duration", "40", "--seed", "7",
+    r = subprocess.run([tool("stid-sim"), "--fast", "-o", str(run), "--duration", "25", "--seed", "7",
                         "--speed", "4", "--effects", "actuator_lag,tyre_relaxation"], capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr
