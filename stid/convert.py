@@ -57,15 +57,22 @@ def steer_angle(steer_us, vehicle: Vehicle):
 START_LOOKBACK_S = 1.0
 
 
-def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S):
-    """Mean yaw rate while standing still, or None when the run never stands still. The last
-    ``lookback_s`` before the speed first shows motion is left out (a hall sensor's: it needs
-    two pulses; a motor controller's speed, as a ROS bag's odometry has it, sees motion at once)."""
+def still_samples(vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S) -> np.ndarray:
+    """True where the car stands still, less the last ``lookback_s`` before the speed first
+    shows motion (a hall sensor's: it needs two pulses; a motor controller's speed, as a ROS
+    bag's odometry has it, sees motion at once): the samples a gyro's zero is taken from."""
     mask = segments.still_mask(vx, fs)
     back = int(lookback_s * fs)
     for a, b in segments.runs_of(mask, 1):
         if b < len(mask):  # the car drives off after this stretch
             mask[max(a, b - back):b] = False
+    return mask
+
+
+def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S):
+    """Mean yaw rate while standing still (``still_samples``), or None when the run never
+    stands still for 0.5 s."""
+    mask = still_samples(vx, fs, lookback_s)
     if mask.sum() < 0.5 * fs:
         return None
     return float(np.mean(r[mask]))

@@ -257,15 +257,14 @@ def _name_one(ranked, skipped, model_name, vehicle, stretches, progress, pool=No
         top.significant = True
         return
     top.pairs = search_pairs(model_name, top, others, vehicle, stretches, n_eff, floor, pool, ahead, progress)
-    held = top.pairs.holds_with
+    held = top.pairs.holds_with  # (a pair is named when both hold: see stid.search.pairs.holds_with)
     if held is None:
         top.why_not = f"not named: {top.evidence.reason}"
         return
     held.evidence.reason = f"holds once {held.partner} is fitted with it (first: {top.evidence.reason})"
     top.evidence = held.evidence
     top.significant = True
-    if held is top.pairs.named:
-        _name_partner(top, next(c for c in ranked if c.effect == held.partner), held, n_eff)
+    _name_partner(top, next(c for c in ranked if c.effect == held.partner), held, n_eff)
 
 
 def _name_partner(top, partner, held, n_eff) -> None:

@@ -119,6 +119,9 @@ def check_kinematics(run, source: str = "csv") -> None:
     if lo <= gain <= hi:
         if steer_sign < 0:
             raise InputError(_steer_message(where, source))
+        scale = scale_mismatch(run, source)
+        if scale:
+            run.warn(scale)
         return
     if -hi <= gain <= -lo:
         raise InputError(_sign_message(where, source, steer_sign))
@@ -139,6 +142,82 @@ def check_kinematics(run, source: str = "csv") -> None:
                                           "ros": "check the vehicle file's [ros] imu_axes, accel_unit and gyro_unit "
                                                  "(docs/ros.md)"}.get(source, "check the sensor calibration in the "
                                                                               "vehicle file and the HELLO"))
+
+
+# -- scales: units right, and still ay != vx*r -------------------------------------
+
+# The units check above accepts any gain within CONSISTENT_GAIN: it looks for factors of 3.6
+# to 570. Inside that band a gain far from 1 is a scale that is wrong, not a unit: a wheel
+# speed that counts wheel spin or a wrong wheel radius, or a sensor's sensitivity. What a
+# consistent run can show (the product of the bounds below):
+# - the accelerometer's and the gyro's sensitivity, +-10% each (ADXL335 270-330 mV/g;
+#   LISY300AL the same order; a digital MEMS IMU is tighter): 0.82-1.22 for their ratio;
+# - the side-slip dynamics left in the slow part, dvy/dt correlated with vx*r: with the
+#   band at SCALE_FV / (the run's 90th-percentile speed) Hz, a linear single track with
+#   normalised cornering stiffness 4-11.6 /rad (a 1:8 and a 1:10 car, 2-8 m/s, random steer
+#   to 3 Hz) gave gains 0.948-1.048: 0.95-1.05;
+# - body roll tilting the accelerometer toward the turn, g sin(phi) on ay: up to +10%.
+# The wheel speed has no tolerance here: wheel spin and the radius are what this looks for.
+SCALE_FV = 4.0  # m/s * Hz: the band times the speed within which dvy/dt stays within 5%
+SCALE_BAND_HZ = (0.25, 2.0)
+SCALE_TOLERANCE = (0.9 / 1.1 * 0.95, 1.1 / 0.9 * 1.05 * 1.1)  # 0.777, 1.411
+SCALE_Z = 3.0  # beyond the tolerance by 3 standard errors of the gain
+
+
+def scale_gain(run):
+    """(gain of ay on vx*r, its standard error, band [Hz]) over the moving part, low-passed in a
+    band that scales with the speed (SCALE_FV), or None when the run does not tell (too little
+    moving, too little cornering). The standard error counts one independent sample per half
+    period of the band."""
+    from stid.fit import filters
+
+    vx = np.asarray(run.vx, float)
+    moving = np.abs(vx) > MOVING_MPS
+    fs = run.fs
+    if moving.sum() / fs < MIN_MOVING_S or not all(np.all(np.isfinite(v)) for v in (run.ay, run.r, vx)):
+        return None
+    fc = float(np.clip(SCALE_FV / np.percentile(np.abs(vx[moving]), 90), *SCALE_BAND_HZ))
+    fc = min(fc, 0.4 * fs)
+    sos = filters.butter_lowpass_sos(2, fc, fs)
+    edge = int(fs / fc)
+    moving[:edge] = moving[-edge:] = False
+    if moving.sum() < 4:
+        return None
+    lp = lambda v: filters.sosfiltfilt(sos, np.asarray(v, float))  # noqa: E731
+    x, y = lp(vx * run.r)[moving], lp(run.ay)[moving]
+    xc, yc = x - x.mean(), y - y.mean()
+    if float(np.sqrt(np.mean(xc ** 2))) < MIN_CORNERING:
+        return None
+    gain = float(np.sum(xc * yc) / np.sum(xc ** 2))
+    e = yc - gain * xc
+    n_eff = max(moving.sum() / fs * 2 * fc, 3.0)
+    se = float(np.sqrt(np.sum(e ** 2) / (len(e) - 2) / np.sum(xc ** 2) * len(e) / n_eff))
+    return gain, se, fc
+
+
+def scale_mismatch(run, source: str = "csv") -> str:
+    """A warning when ay and vx*r agree in unit and sign but not in size: farther from 1 than
+    the sensors' sensitivities and the dynamics allow (SCALE_TOLERANCE) by SCALE_Z standard
+    errors; "" otherwise. Names what makes each side read wrong."""
+    est = scale_gain(run)
+    if est is None:
+        return ""
+    gain, se, fc = est
+    lo, hi = SCALE_TOLERANCE
+    if lo - SCALE_Z * se <= gain <= hi + SCALE_Z * se:
+        return ""
+    radius = {"csv": "the odometry's wheel radius or gain", "ros": "the odometry's wheel radius or ERPM gain"}.get(
+        source, "the wheel radius in the vehicle file")
+    if gain < lo:
+        why = (f"vx reads high (wheel spin: a driven wheel's speed counts its spin; {radius} too large), or the "
+               "gyro reads high / the accelerometer low (their scale)")
+    else:
+        why = (f"vx reads low (wheels locked or sliding under braking; {radius} too small), or the gyro reads "
+               "low / the accelerometer high (their scale)")
+    return (f"ay is {gain:.2f} +- {se:.2f} x vx*r over the slow part (below {fc:.2g} Hz, moving), where a car "
+            f"whose speed and sensors read true shows {lo:.2f}-{hi:.2f} (ay = dvy/dt + vx*r; the sensors' "
+            f"tolerances and the side-slip dynamics): {why}. Every fitted value scales with the speed: "
+            "check the speed against another measure (a lap time, a lidar or GPS track)")
 
 
 # a ROS IMU in the units the VESC driver sends: the [ros] key that says so

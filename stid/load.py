@@ -11,7 +11,7 @@ from host.errors import HostError
 from host.mcap_read import read_log
 from host.mcap_scan import holds_a_log
 from host import units
-from stid import convert, input_checks, sensor_chain
+from stid import convert, input_checks, sensor_chain, steer_clip
 from stid.errors import InputError
 from stid.ros import bag as ros_bag, topic_files
 from stid.run import OPTIONAL, REQUIRED, Run
@@ -72,6 +72,15 @@ def _one_file(a, b) -> bool:
 
 
 def load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
+    runs = _load_file(path, vehicle)
+    for run in runs:
+        clip = steer_clip.clip_warning(run, vehicle.L if vehicle is not None else None)
+        if clip:
+            run.warn(clip)
+    return runs
+
+
+def _load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path} does not exist")
@@ -175,8 +184,28 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
               meta={"source": str(path), "format": "csv", "notes": notes}, valid=valid)
     for w in warnings:
         run.warn(w)
+    _csv_gyro_zero(run)
     input_checks.check_kinematics(run, source="csv")
     return run
+
+
+def _csv_gyro_zero(run) -> None:
+    """The CSV contract has r in rad/s, not zeroed, and a gyro's zero drifts from run to run
+    (HARDWARE.md: estimate it from every run's stand-still): a CSV's stand-still sets it, as an
+    MCAP's and a ROS bag's do. Taking the still mean off an r that was zeroed already (stid
+    export) moves it by that mean, the noise's average. Said in a note either way."""
+    bias = convert.gyro_bias_from_still(run.r, run.vx, run.fs)
+    run.meta["gyro_bias"] = bias
+    notes = run.meta.setdefault("notes", [])
+    if bias is None:
+        notes.append("r taken as logged: the run stands still for under 0.5 s, not counting the last "
+                     f"{convert.START_LOOKBACK_S:g} s before it drives off (a wheel sensor may not see the start), "
+                     "too little to show the gyro's zero")
+        return
+    still_s = float(np.sum(convert.still_samples(run.vx, run.fs))) / run.fs
+    run.r = run.r - bias
+    notes.append(f"gyro zero {bias:+.4f} rad/s ({np.degrees(bias):+.2f} deg/s), the mean of r over {still_s:.1f} s "
+                 "standing still, taken off r")
 
 
 def _check_units(path, cols):

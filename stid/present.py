@@ -151,11 +151,6 @@ def _named_lines(d) -> list:
         return out
     out = _wrap(f"=> add {best.effect} first{also}", first="  ")
     out += _wrap(best.explanation, indent="     ")
-    held = best.pairs.holds_with if best.pairs is not None else None
-    if held is not None:
-        out += _wrap(f"{best.effect} alone is bent ({best.evidence_alone.reason}); it holds once {held.partner} "
-                     f"is fitted with it, but {held.partner}'s own parameter does not "
-                     f"({held.partner_evidence.reason}): --peel tests {held.partner} again", indent="     ")
     out += _wrap(f"{best.effect}: {_params_with_intervals(best.result, best.effect)} (95%)", indent="     ")
     return out
 

@@ -67,8 +67,9 @@ def from_vehicle(vehicle, source: str = CSV_NONE) -> dict:
 
 def undeclared_warnings(runs, vehicle) -> list:
     """A CSV that declares no chain is fitted unfiltered. That is right for another logger's
-    unfiltered data, and wrong by percents for sensor outputs (ADXL335, LISY300AL, a CSV
-    from ``stid export`` or ``stid-sim --csv``): say so once, with the line that settles it."""
+    unfiltered data, and wrong by percents for filtered sensor outputs (an IMU's digital
+    low-pass; a CSV from ``stid export`` or ``stid-sim --csv``): say so once, with the keys that
+    settle it and where their values come from."""
     sensors = getattr(vehicle, "sensors", None) or {}
     if all(k in sensors for k in VEHICLE_KEYS.values()):
         return []
@@ -77,12 +78,14 @@ def undeclared_warnings(runs, vehicle) -> list:
         return []
     what = "a ROS bag" if all((r.meta.get("sensor_chain") or {}).get("source") == ROS_NONE for r in runs
                               if r.name in csv) else "a CSV"
+    # No numbers are suggested: another logger's IMU (a VESC's, a phone's) filters as it was
+    # configured, and our parts' 50 / 88 Hz would be a guess dressed as a value.
     return [f"{', '.join(csv[:3])}{' ...' if len(csv) > 3 else ''}: {what} carries no sensor chain and the "
-            "vehicle file declares none, so the model's outputs are not filtered. If the data are sensor "
-            "outputs (ADXL335 / LISY300AL, an IMU's digital low-pass, or from stid export / stid-sim --csv), "
-            "declare their bandwidths "
-            "in the vehicle file ([sensors] accel_bandwidth_hz = 50, gyro_bandwidth_hz = 88 for the "
-            "reference car); if they are truly unfiltered, declare 0 for both to say so"]
+            "vehicle file declares none, so the model's outputs are not filtered. If the sensors filtered "
+            "what was logged (an IMU's digital low-pass, an analog output filter), declare those filters' "
+            "bandwidths in Hz, as the logging setup configured them, in the vehicle file ([sensors] "
+            "accel_bandwidth_hz, gyro_bandwidth_hz; a CSV from stid export: the values it printed; from "
+            "stid-sim --csv: its simulated ADXL335 and LISY300AL, 50 and 88 Hz); if the data are truly unfiltered, declare 0 for both to say so"]
 
 
 def describe(chain: dict | None) -> str:

@@ -12,7 +12,6 @@ rp2040_hw.py) is checked against the stimulus the test wrote.
 import ast
 import random
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest

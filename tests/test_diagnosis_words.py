@@ -100,7 +100,7 @@ def _round(floor, gap_where):
     from stid.diagnose import Diagnosis
 
     preds = [SimpleNamespace(vx=3.0), SimpleNamespace(vx=7.0)]
-    base = SimpleNamespace(fit={"ay": 90.0, "r": 93.0}, predictions=preds)
+    base = SimpleNamespace(fit={"ay": 90.0, "r": 93.0}, predictions=preds, converged=True)
     d = Diagnosis("bicycle", base, floor, {"ay": 1.0, "r": 1.0}, 1000.0, [],
                   floor_se={"ay": math.nan, "r": math.nan})
     d.unexplained = Unexplained(significant=False, gap={o: floor[o] - base.fit[o] for o in floor},

@@ -4,7 +4,6 @@ estimate's own error. (The review: after a damaged stretch or a burst of lost fr
 first ~130 ms of the next piece exported vx = 0 while the car drove at 4 m/s.)"""
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest

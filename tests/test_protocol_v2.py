@@ -241,10 +241,13 @@ def test_four_wheel_speeds_match_the_truth(four_wheel_run):
 
     with open(csv_path) as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == len(s)
+    # ... at every sample whose values are all known: a wheel's speed before its first hall
+    # interval is not known, and such a row is left out, never written as a number
+    known = np.all([np.isfinite(w[name]) for name in truth], axis=0)
+    assert len(rows) == int(known.sum()) and known.mean() > 0.95
     for name in truth:
         col = np.array([float(r[name]) for r in rows])
-        assert np.allclose(col, w[name], rtol=1e-5, atol=1e-4), name
+        assert np.allclose(col, w[name][known], rtol=1e-5, atol=1e-4), name
 
 
 # -- HELLO --------------------------------------------------------------------------------

@@ -228,7 +228,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_run(tmp_path, ar
     (["--steer-amp", "90"], "--steer-amp 90: give more than 0 and at most 30 degrees"),
     (["--ber", "2"], "--ber 2: a probability"),
     (["--bandwidth", "0"], "--bandwidth 0: give a positive frequency"),
-    (["--still", "-1"], "--still must be 0 or more"),
+    (["--still", "-1"], "--still -1: give 0 or more seconds"),
     (["--speed-swing", "0.3"], "--speed-swing is for --speed-profile track"),
     (["--disconnect-at", "2"], "--disconnect-at is for the served port"),
 ])

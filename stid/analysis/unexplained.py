@@ -88,6 +88,7 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
         u.where.append(r)
     if not all(np.isfinite(floor[o]) for o in OUTS):
         u.where.append(floor_words(floor, floor_se) + ": what a correct model reaches here is unknown")
+        u.where.extend(where_without_floor(model_name, result, vehicle, stretches, mapper, parts))
         return u
     if not short:
         u.where.append(f"{model_name} is at the noise floor of this data: "
@@ -190,3 +191,69 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
             u.where.append(f"the {o} residual follows none of {', '.join(reg)} beyond chance "
                            f"(+-{band:.2f}): look at its spectrum and at signals not logged")
     return u
+
+
+# -- with no noise floor ---------------------------------------------------------------------
+
+SHARE_GROWS = 1.5  # as above: the top third's error share against the middle third's
+
+
+def where_without_floor(model_name, result, vehicle, stretches, mapper=map, parts=None) -> list:
+    """Where the model misses when the data do not show what a correct model would reach
+    (no noise floor: too little steering across frequencies). Nothing here can say the miss is
+    more than noise; what it can say is measured against the signal itself: the band the error
+    lies in and how much of the signal there it misses, whether its share grows with amplitude,
+    whether fits per speed disagree, and which channels the residual follows beyond chance and
+    by MIN_GAP fit points or more."""
+    from stid.analysis.evidence import disagreements, fit_groups
+    from stid.stats import tau_int
+
+    preds, e = _residuals(result)
+    if not len(e):
+        return []
+    fs = 1.0 / stretches[0].dt
+    out = []
+    for i, o in enumerate(OUTS):  # which band holds the error, and how much of the signal it misses there
+        rows = []
+        for lo, hi in BANDS_HZ:
+            if lo >= fs / 2:
+                continue
+            err = np.sqrt(np.mean([_band_rms((p.y - p.yhat)[p.keep, i], fs, lo, hi) ** 2 for p in preds]))
+            sig = np.sqrt(np.mean([_band_rms(p.y[p.keep, i], fs, lo, hi) ** 2 for p in preds]))
+            rows.append((f"{lo:g}-{min(hi, fs / 2):g} Hz", float(err), float(sig)))
+        total = sum(err ** 2 for _, err, _ in rows)
+        if total > 0:
+            top = sorted(rows, key=lambda r: -r[1])[:2]
+            out.append(f"{o} (no floor to judge it by): its error lies at " + " and ".join(
+                f"{b} ({100 * err ** 2 / total:.0f}%, {100 * err / max(sig, 1e-12):.0f}% of the signal there)"
+                for b, err, sig in top))
+    steer = np.concatenate([st.steer[p.keep] for st, p in zip(stretches, preds)])
+    y = np.vstack([p.y[p.keep] for p in preds])
+    for what, x in (("|steer|", np.abs(steer)), ("|ay|", np.abs(y[:, 0]))):
+        edges = np.quantile(x, [1 / 3, 2 / 3])
+        mid, top = (x >= edges[0]) & (x <= edges[1]), x > edges[1]
+        for i, o in enumerate(OUTS):
+            share = [np.sqrt(np.mean(e[m, i] ** 2)) / max(np.sqrt(np.mean(y[m, i] ** 2)), 1e-12) for m in (mid, top)]
+            if top.any() and mid.any() and share[1] > SHARE_GROWS * share[0]:
+                out.append(f"{o}: the error grows faster than the signal with {what} ({100 * share[0]:.0f}% of {o} "
+                           f"in its middle third, {100 * share[1]:.0f}% in its top third): a nonlinearity in amplitude")
+    parts = parts or fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
+    if "speed" in parts:
+        bad = disagreements({"speed": parts["speed"]}, result.names)
+        if bad:
+            out.append("per-speed fits disagree: " + "; ".join(t for _, _, t in bad[:3]))
+    reg = _regressors(stretches, preds)
+    for i, o in enumerate(OUTS):
+        r = e[:, i]
+        band = Z * np.sqrt(tau_int(r, max(2, int(0.5 * fs))) / len(r))
+        # beyond chance is not enough without a floor: the part that follows a channel must be
+        # worth MIN_GAP fit points (a 0.2% discretisation error at 50 Hz correlates +0.18 with
+        # the steer rate over a minute of data)
+        miss = np.linalg.norm(r) / max(np.linalg.norm(y[:, i] - y[:, i].mean()), 1e-12)
+        hits = sorted(((n, float(np.corrcoef(r, x)[0, 1])) for n, x in reg.items() if np.std(x) > 0),
+                      key=lambda t: -abs(t[1]))
+        hits = [(n, c) for n, c in hits if abs(c) > band and 100 * miss * (1 - np.sqrt(1 - c * c)) >= MIN_GAP]
+        if hits:
+            out.append(f"the {o} residual follows " + ", ".join(f"{n} ({c:+.2f})" for n, c in hits[:4])
+                       + f" (chance stays within +-{band:.2f})")
+    return out

@@ -16,7 +16,7 @@ import numpy as np
 
 from stid import sensor_chain
 from stid.errors import InputError
-from stid.fit import dataset, nested
+from stid.fit import dataset, nested, plausibility
 from stid.fit.solver import ParamSpace
 from stid.fit.steady_fit import fit_steady
 from stid.fit.time_fit import fit_time
@@ -77,6 +77,8 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
         if nested.worse_than(result, contained):
             nested.say_worse(result, contained)
     for w in sensor_chain.undeclared_warnings(runs, vehicle):
+        result.warn(w)
+    for w in plausibility.stiffness_warnings(result, runs, vehicle):
         result.warn(w)
     return result
 

@@ -61,7 +61,7 @@ class FitResult:
     converged: bool = True
     status: str = ""
     at_bound: tuple = ()
-    undetermined: dict = field(default_factory=dict)
+    verdict_undetermined: dict = field(default_factory=dict)  # the solve's verdict: name -> why (see undetermined)
 
     # -- numbers ------------------------------------------------------------
     @property
@@ -80,7 +80,24 @@ class FitResult:
         """Take a solve's verdict (stid.fit.convergence.Verdict)."""
         self.converged, self.status = bool(verdict.converged), verdict.status
         self.at_bound = tuple(verdict.at_bound)
-        self.undetermined = dict(verdict.undetermined)
+        self.verdict_undetermined = dict(verdict.undetermined)
+
+    @property
+    def undetermined(self) -> dict:
+        """Parameters with no interval, and why: the solve's verdict (not converged, at a bound,
+        rank-deficient), and a positive parameter whose interval spans more than a factor of
+        MAX_SPAN (its log-space half-width: it says nothing of the value, and overflows)."""
+        out = dict(self.verdict_undetermined)
+        if self.positive and len(self.values):
+            half = self._half95(np.sqrt(np.maximum(np.diag(self.cov), 0.0)))  # (not stderr: it asks this)
+            for i, n in enumerate(self.names):
+                if n in self.positive and self.values[i] > 0 and not 2 * half[i] / self.values[i] < math.log(MAX_SPAN):
+                    out.setdefault(n, f"its interval would span more than a factor of {MAX_SPAN:g}")
+        return out
+
+    @undetermined.setter
+    def undetermined(self, value: dict) -> None:
+        self.verdict_undetermined = dict(value)
 
     def interval_of(self, name: str):
         """(lo, hi) of the parameter's 95% interval, or None when the data do not determine it."""
@@ -94,8 +111,11 @@ class FitResult:
         """Each 95% interval's half-width, as its kind makes it (t quantile times the standard
         error, plus any allowance): what a test of two values against their intervals takes.
         nan where the data do not determine the parameter."""
+        return self._half95(self.stderr)
+
+    def _half95(self, stderr: np.ndarray) -> np.ndarray:
         dof = self.ci_dof if self.ci_dof else max(self.n - len(self.values), 1)
-        half = stdtrit(dof, 0.975) * self.stderr
+        half = stdtrit(dof, 0.975) * stderr
         return half + self.ci_allowance if self.ci_allowance is not None else half
 
     @property
@@ -109,6 +129,9 @@ class FitResult:
         for i, n in enumerate(self.names):
             if n in self.positive and self.values[i] > 0:
                 w = half[i] / self.values[i]
+                if not 2 * w < math.log(MAX_SPAN):  # no interval (see undetermined)
+                    lo[i] = hi[i] = np.nan
+                    continue
                 lo[i], hi[i] = self.values[i] * np.exp(-w), self.values[i] * np.exp(w)
         return np.column_stack([lo, hi])
 
@@ -234,6 +257,7 @@ class FitResult:
         return ""
 
 
+MAX_SPAN = 1e3  # hi/lo of a positive parameter's interval beyond which it is no interval
 WIDE_SE = 2.5  # half-width / std. error beyond which a row says how wide (noise alone: t ~ 1.96-2.4)
 
 

@@ -34,7 +34,7 @@ SCREENED = "screened out"  # the step from the first's fit: within chance, or to
 NOT_TESTED = "not tested"  # the data cannot test the partner at all (it was skipped in the round)
 NOTHING = "adds nothing"  # the joint fit: no more than chance, or too little, beyond the first
 BENT = "first still bent"  # the first's parameter is still not one value with it
-FIRST_HOLDS = "first holds"  # the first's value holds with it, the partner's own does not
+FIRST_HOLDS = "first holds"  # the first's value holds with it, the partner's own does not: no evidence
 NAMED = "named"  # both hold: the pair is named
 NOT_NEEDED = "not needed"  # not fitted: a partner before it made the first hold
 
@@ -91,8 +91,11 @@ class PairSearch:
 
     @property
     def holds_with(self):
-        """The partner with which the first's value holds (its PairTry), or None."""
-        return self._with(NAMED, FIRST_HOLDS)
+        """The partner with which the first's value holds and its own does too (its PairTry), or
+        None. A partner whose own parameter is not one value is a fudge, not a second effect: the
+        first holding beside it is no evidence for the first (an accelerometer scale error the
+        catalogue lacks made gyro_scale hold beside a locked diff whose moment moved 3x with speed)."""
+        return self._with(NAMED)
 
     def words(self) -> str:
         """Which pairs were tried and how each ended, for `unexplained` and the text."""

@@ -15,7 +15,7 @@ from scipy.special import chdtrc  # chi-square survival function
 
 from stid.models.effect import available_effects
 from stid.models.model import Model
-from stid.search.candidate import MIN_GAIN, OUTS, p_in_words
+from stid.search.candidate import MIN_GAIN, OUTS
 from stid.search.pool import WORKERS, in_workers, mapper, shares
 
 MAX_FULL_FITS = 4  # candidates the screen passes on to a full fit, best first
@@ -57,7 +57,7 @@ def sift(c, model_name, level) -> bool:
     if c.p_value >= 100 * level:
         c.screen["why"] = "chance"
         c.why_not = (f"screened out: a linearised step from {model_name} is within chance "
-                     f"({p_in_words(c.p_value, level)})")
+                     f"(p = {c.p_value:.2g})")
         return False
     if best_gain < 0.5 * MIN_GAIN:
         c.screen["why"] = "small"
