@@ -594,3 +594,21 @@ def test_the_excitation_map_puts_the_steer_where_it_was_driven():
     assert m["seconds"][row6] == pytest.approx(10.0, abs=WINDOW_S)
     # a sine of amplitude A holds A^2/2 of power: the 4 m/s row holds twice the 6 m/s row's
     assert power[row4].sum() / power[row6].sum() == pytest.approx(2.0, rel=0.1)
+
+
+def test_a_csv_being_appended_is_read_up_to_its_last_whole_row(car, tmp_path):
+    """A logger appending rows leaves the last one half written at times: the view reads the
+    complete rows (and says nothing is wrong), not a half row as a bad value."""
+    from stid.live.estimator import Estimator
+    from stid.live.source import Source
+
+    full = tmp_path / "full.csv"
+    bicycle_csv(full, 12.0, seed=4)
+    data = full.read_bytes()
+    cut = data.rfind(b"\n", 0, len(data) // 2) + 20  # inside a row
+    growing = tmp_path / "growing.csv"
+    growing.write_bytes(data[:cut])
+    up = Estimator(_vehicle(car), "bicycle", {}, "t").update(Source(growing, _vehicle(car)).poll(), "growing.csv")
+    assert up.params and not up.state, up.state
+    rows = data[:cut].count(b"\n") - 1  # the header's line is not a row
+    assert up.seconds == pytest.approx(rows / 500.0, abs=2 / 500.0)

@@ -94,12 +94,10 @@ class Source:
         if len(inside) == 1:  # a bag directory whose metadata rosbag2 has not written yet: its one file
             path = inside[0]
         recording = being_recorded(path)
+        if path.suffix.lower() == ".csv":
+            path = self._whole_lines(path)  # a logger appending rows: its last one may be half written
         if recording is not None:
-            if self._tmp is None:
-                import tempfile
-
-                self._tmp = tempfile.TemporaryDirectory(prefix="stid-live-")
-            path = Path(self._tmp.name) / recording.name
+            path = self._scratch() / recording.name
             if not readable_copy(recording, path):
                 return Snapshot(state=[f"{recording.name}: no complete chunk yet (ros2 bag record writes them "
                                        "as it goes); waiting"])
@@ -115,6 +113,24 @@ class Source:
                 r.name = r.name.replace(path.name, recording.name)
             snap.state.append(f"a ROS 2 bag being recorded: read up to its last complete chunk")
         return snap
+
+    def _scratch(self) -> Path:
+        """A directory of the view's own, for readable copies of what is being written."""
+        if self._tmp is None:
+            import tempfile
+
+            self._tmp = tempfile.TemporaryDirectory(prefix="stid-live-")
+        return Path(self._tmp.name)
+
+    def _whole_lines(self, path: Path) -> Path:
+        """A CSV up to its last complete line (a copy, when the last line is not complete)."""
+        data = path.read_bytes()
+        end = data.rfind(b"\n") + 1
+        if end == len(data):
+            return path
+        copy = self._scratch() / path.name
+        copy.write_bytes(data[:end])
+        return copy
 
     def _read_stid_log(self) -> Snapshot:
         from host.mcap_read import read_log
