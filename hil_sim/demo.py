@@ -80,31 +80,89 @@ def run(cmd, show=True) -> str:
     return proc.stdout
 
 
-def drive_and_log() -> dict:
-    """All drives at once, each on its own pseudo-terminal with its own stid-log."""
-    sims, loggers, files = [], [], {}
-    for name, args in DRIVES:
+LIVE = "track_6ms"  # the drive watched live (stid-log --live), as a driver at the track would
+LIVE_EVERY_S = 8.0  # seconds of data between the live view's updates shown here
+
+
+def drive_and_log(example: Path) -> dict:
+    """All drives at once, each on its own pseudo-terminal with its own stid-log; one of
+    them with the live view, whose updates are shown as they come."""
+    sims, loggers, files = [], {}, {}
+    echo = None
+    # the longest drives first: the short stand-still then ends while the others hold their
+    # ports, and its logger, waiting for its port to come back, finds no other car's there
+    for name, args in sorted(DRIVES, key=lambda d: -float(d[1][d[1].index("--duration") + 1])):
         sim = subprocess.Popen([tool("stid-sim"), *args, "--effects", HIDDEN], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
         port = sim.stdout.readline().split(": ", 1)[1].strip()
         path = OUT / f"{name}.mcap"
         files[name] = path
-        say(f"    {name:<11} simulated car on {port}  ->  stid-log {port} -o {path}")
-        loggers.append(subprocess.Popen([tool("stid-log"), port, "-o", str(path), "--duration", "60",
-                                         "--reconnect-timeout", "0.5"], stderr=subprocess.PIPE, text=True))
+        live = ["--live", "--vehicle", str(example), "--every", "2"] if name == LIVE else []
+        say(f"    {name:<11} simulated car on {port}  ->  stid-log {port} -o {path}" + " ".join([""] + live[:1]))
+        loggers[name] = subprocess.Popen([tool("stid-log"), port, "-o", str(path), "--duration", "60",
+                                          "--reconnect-timeout", "0.5", *live], stderr=subprocess.PIPE,
+                                         stdout=subprocess.PIPE if live else None, text=True)
+        if live:
+            echo = LiveEcho(loggers[name].stdout)
         sims.append(sim)
-    with Ticker(f"driving ({max(float(a[a.index('--duration') + 1]) for _, a in DRIVES):.0f} s of real time)"):
-        for sim in sims:
-            sim.wait()
+    say(f"\n    the live view of {LIVE} (stid-log --live: its own process; every {LIVE_EVERY_S:.0f} s of data shown):")
+    for sim in sims:
+        sim.wait()
     for sim in sims:  # (their pipes: the port line was read, the rest is not needed)
         sim.stdout.close()
         sim.stderr.close()
-    for (name, _), lg in zip(DRIVES, loggers):
+    errs = {}
+    for name, lg in loggers.items():
+        if lg.stdout is not None:
+            echo.thread.join(timeout=90)  # the view's last update, on the finished file
         _, err = lg.communicate()
         if lg.returncode != 0:
             raise SystemExit(f"demo: stid-log failed for {name}: {err.strip()}")
-        say("    " + err.strip().splitlines()[-1])
+        errs[name] = err
+    echo.flush()
+    say("")
+    for name, _ in DRIVES:
+        say("    " + errs[name].strip().splitlines()[-1])
     return files
+
+
+class LiveEcho:
+    """The live view's plain lines (it is piped here), one update in LIVE_EVERY_S seconds of
+    data shown, and the last one."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.block: list = []
+        self.shown_at = -LIVE_EVERY_S
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        for line in self.stream:
+            line = line.rstrip("\n")
+            if "] stid live " in line:
+                self._maybe_show(final=False)
+                self.block = []
+            self.block.append(line)
+
+    def _seconds(self) -> float:
+        head = self.block[0] if self.block else ""
+        try:
+            return float(head.split("]", 1)[0].strip("[ s"))
+        except ValueError:
+            return -1.0
+
+    def _maybe_show(self, final: bool) -> None:
+        if not self.block or "] stid live " not in self.block[0]:
+            return
+        at = self._seconds()
+        if final or at >= self.shown_at + LIVE_EVERY_S:
+            self.shown_at = at
+            say("\n".join("      " + line for line in self.block))
+
+    def flush(self) -> None:
+        self._maybe_show(final=True)
+        self.block = []
 
 
 def main() -> int:
@@ -117,8 +175,9 @@ def main() -> int:
     say("stid demo: a simulated 1:8 car runs the real firmware (MicroPython) and streams over emulated\n"
         "serial ports. Something about this car is not a textbook bicycle. Let us find out what.\n")
     say("1. Drive: stand still (calibration), then random steer while speeding up and braking around\n"
-        "   4 m/s and 6 m/s (+-25%, as on a track), logged in real time")
-    files = drive_and_log()
+        "   4 m/s and 6 m/s (+-25%, as on a track), logged in real time; the 6 m/s drive is identified\n"
+        "   while it drives (precision per parameter, what the data lack, the diagnosis once it can tell)")
+    files = drive_and_log(example)
     runs = [str(files["track_4ms"]), str(files["track_6ms"])]
 
     say("\n2. Calibrate the sensors from the stand-still run")

@@ -36,7 +36,36 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--repair-output", metavar="OUT", help="where --repair writes (default FILE.repaired.mcap)")
     ap.add_argument("--status", action=argparse.BooleanOptionalAction, default=None,
                     help="live status line (default: only on a terminal)")
+    lv = ap.add_argument_group("identify while driving (stid live, in a process of its own: it never costs a sample)")
+    lv.add_argument("--live", action="store_true",
+                    help="every few seconds: each parameter's value and 95%% precision, what the data still lack, "
+                         "'done' when every target is reached, the diagnosis once the data carry it")
+    lv.add_argument("--vehicle", metavar="V.toml", help="the car's vehicle file (needed by --live)")
+    lv.add_argument("--model", default="bicycle", help="the model to identify live (default bicycle)")
+    lv.add_argument("--target", action="append", metavar="NAME=PCT",
+                    help="e.g. Iz=3%%: the precision to reach (default: the vehicle file's [targets], else 5%%)")
+    lv.add_argument("--web", type=int, nargs="?", const=0, metavar="PORT",
+                    help="also serve the live view on http://127.0.0.1:PORT/ (no PORT: a free one, printed)")
+    lv.add_argument("--every", type=float, default=2.0, help="seconds between live updates (default 2)")
     return ap
+
+
+def live_arguments(args, ap) -> list | None:
+    """The live view's command-line arguments, or None without --live (its options alone are refused)."""
+    if not args.live:
+        given = [o for o, v in (("--vehicle", args.vehicle), ("--target", args.target), ("--web", args.web))
+                 if v is not None]
+        if given:
+            ap.error(f"{', '.join(given)} {'belongs' if len(given) == 1 else 'belong'} to --live: add --live")
+        return None
+    if not args.vehicle:
+        ap.error("--live needs the car's vehicle file: --vehicle V.toml (mass, a, b; see docs/examples/rc8.toml)")
+    out = ["--vehicle", args.vehicle, "--model", args.model, "--every", str(args.every)]
+    for t in args.target or []:
+        out += ["--target", t]
+    if args.web is not None:
+        out += ["--web", str(args.web)]
+    return out
 
 
 def main(argv=None) -> int:
@@ -54,6 +83,9 @@ def main(argv=None) -> int:
             # inf is a fair "no end" (no option is also); nan or a negative time is a typo
             if value is not None and not value > 0:
                 ap.error(f"{flag} {value:g}: give a positive number of seconds")
+        live = live_arguments(args, ap)
+        if live is not None:  # a vehicle file the view cannot read is refused now, not after the run
+            check_live(live)
         if args.hello_from:  # refused now, not after the run it was meant to rescue
             from host.hello_supply import check_source
 
@@ -63,7 +95,7 @@ def main(argv=None) -> int:
         stats = Logger(LogOptions(port=args.port, output=args.output, duration=args.duration, baud=args.baud,
                                   idle_timeout=args.idle_timeout, reconnect_timeout=args.reconnect_timeout,
                                   status=args.status, hello_from=args.hello_from,
-                                  overwrite=args.overwrite)).run()
+                                  overwrite=args.overwrite, live=live)).run()
         print(summary_line(stats), file=sys.stderr)
         return 0
     except HostError as e:
@@ -75,6 +107,18 @@ def main(argv=None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+
+
+def check_live(argv: list) -> None:
+    """The live view's arguments checked by the view itself (vehicle file, model, targets),
+    before the port is opened: a mistake there is said at once, not after the run."""
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-m", "stid.cli", "live", "--check", "-", *argv],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise HostError((proc.stderr.strip().splitlines() or ["the live view refused its arguments"])[-1]
+                        .replace("stid live: error: ", "--live: "))
 
 
 if __name__ == "__main__":

@@ -78,6 +78,7 @@ class LogOptions:
     status: bool | None = None  # live status line (default: only on a terminal)
     hello_from: str | None = None  # an earlier log of the same board, if no HELLO arrives
     overwrite: bool = False  # replace an existing -o file (never by default: it may be a run)
+    live: list | None = None  # arguments of the live view (stid live FILE --follow ...); None: no view
 
 
 def default_output_name() -> str:
@@ -207,7 +208,13 @@ class Logger:
         rec = Recorder(log)
         self.identity = port_identity(o.port)
         log.metadata("stid.port", self.identity)
-        status = StatusLine(sys.stderr.isatty() if o.status is None else o.status)
+        self.live = None
+        if o.live is not None:
+            from host.live_view import LiveView
+
+            self.live = LiveView(self.path, o.live)
+        # (with a live view the terminal is the view's: its table has the rates in it)
+        status = StatusLine(False if self.live else sys.stderr.isatty() if o.status is None else o.status)
         self.status = status
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
         try:
@@ -227,6 +234,8 @@ class Logger:
             status.close()
             if self.port is not None:
                 self.port.close()
+            if self.live is not None:
+                self.live.finish()  # (the file is closed: the view's last update is on all of it)
         if not rec.hello_seen and rec.samples and rec.supplied_hello is None:
             errs = describe_rejects({k: v for k, v in rec.stats.errors.items() if v})
             raise NoHelloError(
@@ -241,7 +250,10 @@ class Logger:
         self._say(f"warning: {text}")
 
     def _say(self, text: str) -> None:
-        """A line for the person logging, terminal or not (the status line makes way for it)."""
+        """A line for the person logging, terminal or not (the status line makes way for it;
+        a live view shows it above its table)."""
+        if self.live is not None and self.live.say(f"stid-log: {text}"):
+            return
         self.status.close()
         self.status._width = 0
         print(f"stid-log: {text}", file=sys.stderr, flush=True)
@@ -357,9 +369,9 @@ class Logger:
                 return False
             if o.reconnect_timeout is not None and waited > o.reconnect_timeout:
                 self.stop_reason = "port gone"
-                status.close()
-                print(f"{o.port} did not come back within {o.reconnect_timeout:.0f} s; "
-                      f"the file is complete up to the unplug", file=sys.stderr)
+                # (through _say: a live view shows it above its table instead of drawing over it)
+                self._say(f"{o.port} did not come back within {o.reconnect_timeout:.0f} s; "
+                          f"the file is complete up to the unplug")
                 return False
             status.update(f"{self.path.name}  port unplugged for {waited:4.1f} s, waiting for {o.port} ...")
             try:

@@ -95,7 +95,7 @@ REPAIR_METADATA = "stid.repair"  # what a repaired file's original lacked (host.
 _SKIP_ON_LOAD = frozenset({RAW_TOPIC, SI_TOPIC})
 
 
-def scan_log(path, skip_topics=frozenset()) -> Scan:
+def scan_log(path, skip_topics=frozenset(), chunks: dict | None = None) -> Scan:
     """Check and scan a stid log: a readable MCAP file from stid-log (or its repair), else
     LogReadError with what to do."""
     path = Path(path)
@@ -109,7 +109,7 @@ def scan_log(path, skip_topics=frozenset()) -> Scan:
     if not buf.startswith(MAGIC):
         raise LogReadError(f"{path} is not an MCAP file (no MCAP magic at the start): "
                            "corrupted, or not written by stid-log")
-    sc = scan(buf, skip_topics)
+    sc = scan(buf, skip_topics, chunks)
     topics = {c.topic for c in sc.channels.values()}
     profile = sc.header.profile if sc.header is not None else None
     if profile is None and not topics:
@@ -124,9 +124,10 @@ def scan_log(path, skip_topics=frozenset()) -> Scan:
     return sc
 
 
-def read_log(path) -> LogData:
+def read_log(path, chunks: dict | None = None) -> LogData:
+    """``chunks``: kept between reads of a file that grows (host.mcap_scan.scan)."""
     path = Path(path)
-    sc = scan_log(path, _SKIP_ON_LOAD)
+    sc = scan_log(path, _SKIP_ON_LOAD, chunks)
     topics = {cid: c.topic for cid, c in sc.channels.items()}
     data = LogData(str(path), np.zeros(0, LOADED_DTYPE), truncated=sc.truncated, damage=sc.damage,
                    data_crc_ok=sc.data_crc_ok)

@@ -106,10 +106,14 @@ class _Bad(Exception):
     """A record that does not parse or fails its checksum (message: why)."""
 
 
-def scan(buf: bytes, skip_topics=frozenset()) -> Scan:
+def scan(buf: bytes, skip_topics=frozenset(), chunks: dict | None = None) -> Scan:
     """Every trustworthy record of an MCAP file held in ``buf`` (which starts with the magic).
 
     Messages on ``skip_topics`` are not copied out (loading speed), but still counted.
+    ``chunks``: what earlier scans of the same file found in its chunks, kept by the caller
+    for a file that grows (``stid live`` rereads a log every few seconds while stid-log
+    appends to it): a chunk at the same place with the same length and CRC is taken from it
+    instead of being decompressed and checked again, and new chunks are added to it.
     """
     out = Scan()
     view = memoryview(buf)
@@ -128,7 +132,8 @@ def scan(buf: bytes, skip_topics=frozenset()) -> Scan:
             if op < 0 or end > n:
                 raise _Bad("a record runs past the end of the file")
             if op == CHUNK:
-                lo, hi = _chunk(view[pos + 9:end], out, skip_ids, skip_topics)
+                lo, hi = (_chunk(view[pos + 9:end], out, skip_ids, skip_topics) if chunks is None
+                          else _remembered_chunk(buf, pos, end, out, skip_ids, skip_topics, chunks))
                 out.chunks += 1
                 if lo is not None:
                     out.chunk_spans.append((pos, lo, hi))
@@ -178,6 +183,32 @@ def scan(buf: bytes, skip_topics=frozenset()) -> Scan:
             out.damage.append(Damage(n, 0, "the data end record is missing"))
     _place_damage(out)
     return out
+
+
+def _remembered_chunk(buf: bytes, pos: int, end: int, out: Scan, skip_ids: set, skip_topics, chunks: dict):
+    """``_chunk``, or what it gave for the same chunk before: the messages it added, the
+    definitions it held, the messages it skipped (replayed in that order)."""
+    body = memoryview(buf)[pos + 9:end]
+    try:
+        key = (pos, end, _CHUNK_HEAD.unpack_from(body, 0)[2:4])  # place, end, size and CRC
+    except struct.error:
+        key = None
+    known = chunks.get(key) if key is not None else None
+    if known is not None:
+        lo, hi, defs, messages, skipped = known
+        for rec in defs:
+            _add_def(rec, out, skip_ids, skip_topics)
+        out.messages.extend(messages)
+        out.skipped_messages += skipped
+        return lo, hi
+    n_msg, n_skip = len(out.messages), out.skipped_messages
+    channels, schemas = set(out.channels), set(out.schemas)
+    lo, hi = _chunk(body, out, skip_ids, skip_topics)
+    if key is not None:
+        defs = [out.schemas[i] for i in out.schemas if i not in schemas]
+        defs += [out.channels[i] for i in out.channels if i not in channels]
+        chunks[key] = (lo, hi, defs, out.messages[n_msg:], out.skipped_messages - n_skip)
+    return lo, hi
 
 
 def _exact(cls, body: memoryview):

@@ -319,6 +319,29 @@ def _cmd_calibrate(args) -> int:
     return calibrate_cli(args.standstill, args.vehicle, args.circle or (), args.output, args.overwrite)
 
 
+def _cmd_live(args) -> int:
+    from stid.live.follow import live
+    from stid.live.targets import choose, parse_cli
+    from stid.models.model import Model
+    from stid.vehicle_file import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    targets, where = choose(Model(args.model, vehicle), parse_cli(args.target), vehicle.targets)
+    if not args.every > 0:
+        from stid.errors import InputError
+
+        raise InputError(f"--every {args.every:g}: give the seconds between updates, above 0 (e.g. 2)")
+    if args.check:  # stid-log --live checks the view's arguments before it opens the port
+        return 0
+    if not args.follow and not Path(args.run).exists():  # (followed, it may not be there yet)
+        from stid.errors import InputError
+
+        raise InputError(f"{args.run} does not exist (to wait for a file a logger is about to write, add --follow)")
+    return live(args.run, vehicle, args.model, targets, where, follow=args.follow, every=args.every,
+                web_port=args.web, json_lines=args.json, from_logger=args.from_logger,
+                diagnose=not args.no_diagnose)
+
+
 def _cmd_repair(args) -> int:
     from host.repair import repair_cli
 
@@ -441,6 +464,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", action="append", metavar="NAME=PCT", help="e.g. Iz=5%%: what to add to reach it")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_plan)
+
+    p = sub.add_parser("live", help="while a run is recorded: precision per parameter, what to drive next, done")
+    p.add_argument("run", metavar="RUN", help="a run being written: stid-log's MCAP (or a ROS 2 bag, once readable)")
+    p.add_argument("--vehicle", required=True, help="vehicle TOML: name, mass [kg], a, b [m] (and [targets])")
+    p.add_argument("--model", default="bicycle", help="bicycle or bicycle+effect+... (default bicycle)")
+    p.add_argument("--target", action="append", metavar="NAME=PCT",
+                   help="e.g. Iz=3%%: the 95%% interval's half-width to reach, in %% of the value (repeat; default: "
+                        "the vehicle file's [targets], else 5%% for every parameter positive by nature)")
+    p.add_argument("--follow", action="store_true", help="keep reading the file as it grows (else: one update)")
+    p.add_argument("--every", type=float, default=2.0, help="seconds between updates (default 2)")
+    p.add_argument("--web", type=int, nargs="?", const=0, metavar="PORT",
+                   help="also serve the live view on http://127.0.0.1:PORT/ (no PORT: a free one, printed)")
+    p.add_argument("--json", action="store_true", help="one JSON document per update on stdout (nothing else)")
+    p.add_argument("--no-diagnose", action="store_true", help="do not run stid diagnose in the background")
+    p.add_argument("--from-logger", action="store_true", help=argparse.SUPPRESS)  # stid-log --live's child
+    p.add_argument("--check", action="store_true", help=argparse.SUPPRESS)  # only check the arguments
+    p.set_defaults(func=_cmd_live)
 
     p = sub.add_parser("batch", help="fit (and diagnose) many runs in parallel; one table and drift plots")
     p.add_argument("runs", metavar="DIR_OR_GLOB", help="a directory of runs or a glob like 'logs/*.mcap'")

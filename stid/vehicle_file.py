@@ -32,13 +32,17 @@ ay = "-imu_ax"
 [ros]                 # ROS bags: topics and the IMU's mounting (docs/ros.md)
 imu = "/sensors/imu/raw"
 imu_axes = ["y", "-x", "z"]
+
+[targets]             # `stid live`: the 95% half-width each parameter should reach [% of its value]
+Iz = "3%"
 ```
 
 ``gyro_v_per_dps`` (gyro sensitivity [V per deg/s]) may also be set in ``[sensors]``.
 A sensor bandwidth of 0 means no filter. ``[params]`` names parameters of the base
 models (``Cf``, ``Cr``, ``Iz``; greybox ``Cx``, ``Cy``, ``CA``) or of a registered
 effect; every fit starts at its ``init`` and searches within its ``min``/``max`` (a fit
-that ends on a bound gives no interval), the closed-form steady-state lines excepted. ``[csv]`` keys are contract columns (stid.csv_map), ``[ros]`` keys are listed in
+that ends on a bound gives no interval), the closed-form steady-state lines excepted;
+``[targets]`` keys are parameters too (``stid live``). ``[csv]`` keys are contract columns (stid.csv_map), ``[ros]`` keys are listed in
 stid.ros.topic_map. Any other key or table is an error that names it and the nearest known key.
 """
 
@@ -69,6 +73,7 @@ class Vehicle:
     params: dict = field(default_factory=dict)
     csv: dict = field(default_factory=dict)
     ros: dict = field(default_factory=dict)
+    targets: dict = field(default_factory=dict)  # parameter -> 95% half-width [% of value] (stid live)
     path: str | None = None
     raw: dict = field(default_factory=dict)
 
@@ -101,6 +106,7 @@ TABLES = {
     "board": None,  # the board's HELLO, declared for a log none reached (host/hello_supply.py checks it)
     "csv": None,  # contract column -> source expression (stid.csv_map checks it)
     "ros": None,  # topics and IMU mounting of ROS bags (stid.ros.topic_map checks it)
+    "targets": None,  # parameter -> precision in percent, for stid live (stid.live.targets checks it)
 }
 PARAM_SPEC_KEYS = ("init", "min", "max")
 _NONNEGATIVE = ("accel_bandwidth_hz", "gyro_bandwidth_hz")  # Hz; 0 = no filter
@@ -137,13 +143,8 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _check_params(params: dict, where, vehicle=None) -> None:
-    """[params] entries are model parameters: ``NAME = { init = .., min = .., max = .. }``, each
-    a range that holds its start (with the catalogue's values for what it leaves out) and, for a
-    parameter fitted in log space (positive), no bound at or below 0."""
-    if not params:
-        return
-    # Imported only when a file has [params]: the model catalogue costs most of a second.
+def _known_params() -> list:
+    # Imported only when a file names parameters: the model catalogue costs most of a second.
     from stid.models.bicycle import BASE_PARAMS
     from stid.models.effect import available_effects
     from stid.models.greybox import GREYBOX_PARAMS
@@ -152,6 +153,35 @@ def _check_params(params: dict, where, vehicle=None) -> None:
     known += [p.name for p in GREYBOX_PARAMS if p.name not in known]
     for cls in available_effects().values():
         known += [p.name for p in cls.params if p.name not in known]
+    return known
+
+
+def _check_targets(targets: dict, where) -> dict:
+    """[targets] entries: a model parameter and its precision in percent (``Iz = "3%"``)."""
+    if not targets:
+        return {}
+    from stid.live.targets import parse_percent
+
+    known = _known_params()
+    out = {}
+    for name, value in targets.items():
+        if name not in known:
+            raise unknown_key(where, "parameter", name, known, "[targets]")
+        out[name] = parse_percent(value, f"{where}: [targets] {name}")
+    return out
+
+
+def _check_params(params: dict, where, vehicle=None) -> None:
+    """[params] entries are model parameters: ``NAME = { init = .., min = .., max = .. }``, each
+    a range that holds its start (with the catalogue's values for what it leaves out) and, for a
+    parameter fitted in log space (positive), no bound at or below 0."""
+    if not params:
+        return
+    from stid.models.bicycle import BASE_PARAMS
+    from stid.models.effect import available_effects
+    from stid.models.greybox import GREYBOX_PARAMS
+
+    known = _known_params()
     for name, spec in params.items():
         if name not in known:
             raise unknown_key(where, "parameter", name, known, "[params]")
@@ -233,6 +263,7 @@ def load_vehicle(path) -> Vehicle:
     if st.get("gain") == 0:
         raise InputError(f"{where}: [steering] gain must not be 0 (command change per radian of road-wheel angle)")
     _check_params(v.params, where, v)
+    v.targets = _check_targets(doc.get("targets", {}), where)
     from stid.csv_map import check_table
     from stid.ros.topic_map import check_table as check_ros
 

@@ -37,10 +37,13 @@ def simulate(model, p: dict, st: Stretch) -> np.ndarray:
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
              discard_s: float = 0.5, multistart: bool | None = None, space: ParamSpace | None = None,
              method_name: str = "time", reweight: bool = True, sigma=None,
-             whiten: bool = False, intervals: str = "noise") -> FitResult:
+             whiten: bool = False, intervals: str = "noise", settle: bool = False) -> FitResult:
     """Output-error fit. ``intervals``: ``"noise"`` (Newey-West sandwich: right about
     noise) or ``"model-error"`` (also a delete-a-block jackknife, stid.fit.intervals: the
-    wider of the two, for results a user reads)."""
+    wider of the two, for results a user reads). ``settle`` (with ``sigma`` and ``init``
+    from a fit to most of the same data, as ``stid live`` refits while a run grows):
+    ``sigma`` is each output's residual level, so the solve stops once statistically at the
+    optimum, as the refined solve of a fit that finds its own weights does."""
     fixed = dict(fixed or {})
     warnings = check_excitation(stretches)
     keeps = [_keep(s, discard_s) for s in stretches]
@@ -74,7 +77,11 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     # when the weights are refined below, this first solve only has to find them (to a
     # fraction of a percent): a loose tolerance saves most of its iterations, which creep
     # linearly on a model that misses an effect
-    res = least_squares(lambda p: residual(p, sigma), space, starts, **({"ftol": 1e-4} if reweight else {}))
+    solve_kw = {"ftol": 1e-4} if reweight else {}
+    if settle and not reweight:
+        r_start = residual(starts[0], sigma).reshape(-1, 2) * sigma
+        solve_kw = {"unit_noise": True, "colour": _colour(r_start, keeps, stretches[0].dt)}
+    res = least_squares(lambda p: residual(p, sigma), space, starts, **solve_kw)
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once
     if reweight:

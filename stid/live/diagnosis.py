@@ -1,0 +1,127 @@
+"""The diagnosis's first answer, found in the background.
+
+``stid diagnose RUN --json`` (the command, through its documented JSON) runs as a
+process of its own at the lowest priority on the file as it is then, whenever the data
+have grown enough since the last try; the live view shows its verdict meanwhile. A
+diagnosis takes seconds to minutes: the updates never wait for it, and it never delays
+the logger (it is niced below both).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+MIN_DRIVING_S = 15.0  # less than this carries no diagnosis worth waiting for
+GROWTH = 1.5  # try again once the data are this many times what the last try saw
+NICE = 19
+
+
+class BackgroundDiagnosis:
+    def __init__(self, path, vehicle_path: str | None, model: str):
+        self.path = str(path)
+        self.vehicle_path = vehicle_path
+        self.model = model
+        self.proc: subprocess.Popen | None = None
+        self.tried_at = 0.0  # driving seconds the last try saw
+        self.running_at = 0.0
+        self.text: str | None = None  # the verdict shown
+        self.effect: str | None = None  # the effect it names (None: nothing named, or not yet)
+        self.runs = 0
+
+    def poll(self, driving_s: float, finished: bool = False) -> str | None:
+        """Collect a finished try, start the next when due; the verdict to show."""
+        if self.vehicle_path is None:
+            return None
+        if self.proc is not None and self.proc.poll() is not None:
+            out, _ = self.proc.communicate()
+            self.text = verdict(out, self.running_at) or self.text
+            self.effect = named_effect(out) if self.text else self.effect
+            self.tried_at = self.running_at
+            self.proc = None
+        # (none started on a finished file: the view ends after its last update; `stid diagnose`
+        # on the file is the command for the whole run)
+        due = (not finished and driving_s >= MIN_DRIVING_S
+               and (self.tried_at == 0 or driving_s >= GROWTH * self.tried_at))
+        if self.proc is None and due:
+            self._start(driving_s)
+        if self.text is None:
+            if self.proc is not None:
+                return f"diagnosis: looking at the first {self.running_at:.0f} s of driving ..."
+            return f"diagnosis: after {MIN_DRIVING_S:.0f} s of driving"
+        return self.text
+
+    def _start(self, driving_s: float) -> None:
+        cmd = [sys.executable, "-m", "stid.cli", "diagnose", self.path, "--vehicle", self.vehicle_path,
+               "--model", self.model, "--json"]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                     preexec_fn=lambda: os.nice(NICE))
+        self.running_at = driving_s
+        self.runs += 1
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+def named(doc: dict) -> list:
+    """The effects a round tells the user to add: ``named`` (one, or a pair), or in an older
+    diagnosis the best significant candidate."""
+    if isinstance(doc.get("named"), list):
+        return [str(e) for e in doc["named"]]
+    best = next((c for c in doc.get("candidates", []) if c.get("significant")), None)
+    return [best["effect"]] if best else []
+
+
+def verdict(output: str, driving_s: float) -> str | None:
+    """One line from ``stid diagnose --json``: what it names with their parameters, or that
+    nothing is missing; None when the output is not a diagnosis."""
+    try:
+        doc = json.loads(output)
+    except (json.JSONDecodeError, TypeError):
+        return None
+    if not isinstance(doc, dict) or "candidates" not in doc:
+        return None
+    effects = named(doc)
+    at = f"(stid diagnose, {driving_s:.0f} s of driving)"
+    if not effects:
+        return f"diagnosis: nothing missing from {doc.get('model', 'the model')} that these data show {at}"
+    shown = {}
+    for c in doc["candidates"]:
+        if c.get("effect") in effects:
+            units = c.get("units", {})
+            for n, v in (c.get("params") or {}).items():
+                shown.setdefault(n, _quantity(n, v, units.get(n, "")))
+    values = ", ".join(shown.values())
+    return f"diagnosis: {' + '.join(effects)} likely{': ' + values if values else ''} {at}"
+
+
+def named_effect(output: str) -> str | None:
+    """What to add to the model (``a+b`` for a pair), or None."""
+    try:
+        doc = json.loads(output)
+    except (json.JSONDecodeError, TypeError):
+        return None
+    effects = named(doc) if isinstance(doc, dict) else []
+    return "+".join(effects) or None
+
+
+def _quantity(name: str, value: float, unit: str) -> str:
+    """A parameter in the unit a person reads it in (ms for a lag, cm for an offset, deg)."""
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        return f"{name} ?"
+    if unit == "s" and abs(value) < 1:
+        return f"{name} {value * 1e3:.0f} ms"
+    if unit == "m" and abs(value) < 1:
+        return f"{name} {value * 1e2:.1f} cm"
+    if unit == "rad":
+        return f"{name} {math.degrees(value):.2f} deg"
+    return f"{name} {value:.3g} {unit}".rstrip()

@@ -1,0 +1,143 @@
+"""``stid live RUN``: the loop that reads the growing file, updates, and shows.
+
+Every ``every`` seconds the newest state of the file is read and fitted. An update that
+takes longer than that is followed at once by one on the newest data: the view skips
+ahead, it never works through a backlog. A file that does not change is not fitted
+again; what the view says about it (a quiet port) still is.
+
+Started by ``stid-log --live`` (``from_logger``), the logger's own lines come on stdin
+and are shown above the table; stdin closing means the logger has finished the file:
+one last update on the finished file, then the view ends.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import signal
+import sys
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from stid.live.diagnosis import BackgroundDiagnosis
+from stid.live.estimator import Estimator, done_line
+from stid.live.source import Source
+from stid.live.terminal import TerminalView
+
+LAST_WAIT_S = 20.0  # after the logger ends: how long to wait for its file to be finished
+
+
+def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bool = False, every: float = 2.0,
+         web_port: int | None = None, json_lines: bool = False, from_logger: bool = False,
+         diagnose: bool = True, stream=None) -> int:
+    stream = stream or sys.stdout
+    est = Estimator(vehicle, model, targets, targets_from)
+    src = Source(path, vehicle)
+    view = None if json_lines else TerminalView(stream)
+    msgs: queue.Queue = queue.Queue()
+    logger_done = threading.Event()
+    if from_logger:
+        threading.Thread(target=_read_messages, args=(sys.stdin, msgs, logger_done), daemon=True).start()
+    stop = threading.Event()
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        for s in (signal.SIGINT, signal.SIGTERM):
+            old[s] = signal.signal(s, lambda *_: stop.set())
+    server = None
+    diag = BackgroundDiagnosis(path, vehicle.path, model) if diagnose and follow else None
+    name = Path(path).name
+    try:
+        if web_port is not None:
+            from stid.live.web import LiveServer
+
+            server = LiveServer(web_port)
+            _say(view, f"stid live: the live view is at {server.url} (this machine only)", json_lines)
+        last = None
+        shown = None
+        logger_ended_at = None
+        while True:
+            t0 = time.monotonic()
+            snap = src.poll()
+            if last is None or snap.changed:
+                up = est.update(snap, name)
+            else:  # nothing new to fit: only what the view says about the data may have changed
+                up = replace(last, state=list(snap.state), wall=time.time())
+                up.done = done_line(up)
+            if diag is not None:
+                up.diagnosis = diag.poll(up.driving_s, snap.finished)
+                if diag.effect and up.params and not up.done:
+                    # a model without what the car has: its residual is model error, which more
+                    # driving does not shrink as the plan assumes
+                    line = (f"a model with what the diagnosis names: --model {model}+{diag.effect} "
+                            "(the fit then misses less)")
+                    if line not in up.lacking:
+                        up.lacking = up.lacking + [line]
+            said = (up.seq, tuple(up.state), up.diagnosis, tuple(up.lacking), up.done)
+            if said != shown:  # (an unchanged file and nothing new to say: nothing is shown again)
+                _show(view, server, up, json_lines, stream)
+                shown = said
+            last = up
+            while not msgs.empty():
+                _say(view, msgs.get(), json_lines)
+            if not follow or stop.is_set():
+                break
+            if snap.finished and (not from_logger or logger_done.is_set()):
+                break
+            pace = every
+            if logger_done.is_set():  # the logger has ended: its file is finished any moment now
+                logger_ended_at = logger_ended_at or time.monotonic()
+                if time.monotonic() - logger_ended_at > LAST_WAIT_S:
+                    break
+                pace = min(every, 0.2)
+            # wait for the next tick, showing the logger's lines as they come
+            while not stop.is_set():
+                left = pace - (time.monotonic() - t0)
+                if left <= 0:
+                    break
+                try:
+                    _say(view, msgs.get(timeout=min(left, 0.25)), json_lines)
+                except queue.Empty:
+                    pass
+            if stop.is_set():
+                break
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        if diag is not None:
+            diag.stop()
+        if server is not None:
+            server.close()
+    return 0
+
+
+def _read_messages(stdin, msgs: queue.Queue, done: threading.Event) -> None:
+    try:
+        for line in stdin:
+            line = line.rstrip("\n")
+            if line:
+                msgs.put(line)
+    except (OSError, ValueError):
+        pass
+    done.set()
+
+
+def _say(view, text: str, json_lines: bool) -> None:
+    if view is not None:
+        view.message(text)
+    else:
+        print(text, file=sys.stderr, flush=True)
+
+
+def _show(view, server, up, json_lines: bool, stream) -> None:
+    doc = None
+    if server is not None or json_lines:
+        doc = up.to_json()  # (every number in it is finite or null)
+    if server is not None:
+        server.publish(doc)
+    if json_lines:
+        stream.write(json.dumps(doc, allow_nan=False) + "\n")
+        stream.flush()
+    else:
+        view.show(up)
