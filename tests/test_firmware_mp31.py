@@ -59,7 +59,7 @@ def mp64(script: Path, *args, timeout: float = 600) -> subprocess.CompletedProce
                           capture_output=True, text=True, env=env, timeout=timeout)
 
 
-def passed(proc) -> dict:
+def check_passed(proc) -> dict:
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-4000:]
     assert "FAIL" not in out and " passed, 0 failed" in out, out[-4000:]
@@ -80,11 +80,11 @@ def test_the_port_has_the_boards_integers_and_shows_what_the_unix_port_hides():
 def test_codec_frames_on_31_bits_match_the_golden_vectors():
     # the port has no viper: run.mjs puts tests/mp31/viper_free.py in place of codec's three
     # viper functions; byte for byte the same frames, or this fails
-    passed(mp31(MP_TESTS / "mp_vectors.py", REPO / "firmware" / "vectors" / "vectors.json", timeout=60))
+    check_passed(mp31(MP_TESTS / "mp_vectors.py", REPO / "firmware" / "vectors" / "vectors.json", timeout=60))
 
 
 def test_ring_on_31_bits():
-    passed(mp31(MP_TESTS / "mp_ring.py", timeout=60))
+    check_passed(mp31(MP_TESTS / "mp_ring.py", timeout=60))
 
 
 @pytest.mark.parametrize("board, variant", [("pico", "default"), ("pico", "irq"),
@@ -98,7 +98,7 @@ def test_firmware_across_the_tick_wrap_on_31_bits(board, variant):
     wrap and the firmware's counters (sample index, ring, frame numbers) 1-4 s before theirs;
     drive 3 s, receiver off 1 s, drive 2 s. Every interrupt and main-loop pass with the heap
     locked: main's sampler.py dies here at the wrap (MemoryError, timer stopped)."""
-    tot = passed(mp31(MP31 / "mp31_run.py", board, variant, "wrap", timeout=240))
+    tot = check_passed(mp31(MP31 / "mp31_run.py", board, variant, "wrap", timeout=240))
     assert tot["int_bits"] == 31
     assert tot["isr_errors"] == tot["pin_irq_errors"] == tot["main_loop_errors"] == 0
     assert tot["samples"] >= 2980 and tot["pulses"] == 250 and tot["edges"] > 500 and tot["bounces"] > 100
@@ -114,7 +114,7 @@ def test_a_surface_receivers_333_hz_frames_at_100_hz_on_31_bits(board):
     polled at rising edges only and dropped every pulse here, the steer read 0). Across the
     wrap, heap locked. (The samples then hold 3 pulses in 10: the loader puts the others back,
     stid.convert.receiver_period_us.)"""
-    tot = passed(mp31(MP31 / "mp31_run.py", board, "default", "wrap", 100, 3000, timeout=240))
+    tot = check_passed(mp31(MP31 / "mp31_run.py", board, "default", "wrap", 100, 3000, timeout=240))
     assert tot["int_bits"] == 31 and tot["servo_period_us"] == 3000
     assert tot["pulses"] > 1600 and tot["samples"] >= 585  # (the last frame still in the ring)
 
@@ -125,7 +125,7 @@ def test_nine_minutes_of_lost_ticks_do_not_overflow_ticks_add_on_31_bits(board):
     main loop's last bytecode ~9 min (2^29 us less a margin) after the last tick served, then
     a call. 0.3.2 raised OverflowError in the timer callback (rp2: the timer stops); now the
     lost periods are counted in `missed`, the index skips them and sampling goes on."""
-    passed(mp31(MP31 / "mp31_lost_ticks.py", board, timeout=120))
+    check_passed(mp31(MP31 / "mp31_lost_ticks.py", board, timeout=120))
 
 
 @pytest.mark.parametrize("board", ["pico", "esp32"])
@@ -136,7 +136,7 @@ def test_a_short_track_day_with_a_10_minute_park(board):
     servo periods, so that it fits the default suite; the 3-hour day at 500 Hz is the slow
     test below. The unix port (its ticks wrap at 2^30 on this board too); the 31-bit port
     is the test above."""
-    tot = passed(mp64(MP31 / "mp31_run.py", board, "default", "park", 100, timeout=600))
+    tot = check_passed(mp64(MP31 / "mp31_run.py", board, "default", "park", 100, timeout=600))
     assert tot["samples"] >= 63_980 and tot["edges"] > 4000
     assert tot["watchdog_resets"] == 0 and tot["count_steps_back"] == 0
 
@@ -153,7 +153,7 @@ def _parallel(run, jobs):
 def test_a_10_minute_park_on_31_bits_at_500_hz():
     procs = _parallel(lambda b, v: mp31(MP31 / "mp31_run.py", b, v, "park", 500, timeout=3600), PARK_31)
     for (board, _), proc in zip(PARK_31, procs):
-        tot = passed(proc)
+        tot = check_passed(proc)
         sys.stderr.write(f"{board}: {json.dumps(tot)}\n")
         assert tot["int_bits"] == 31 and tot["samples"] >= 319_980
 
@@ -168,6 +168,6 @@ def test_a_3_hour_track_day_at_500_hz():
     jobs = [("pico", "default"), ("esp32", "default")]
     procs = _parallel(lambda b, v: mp64(MP31 / "mp31_run.py", b, v, "trackday", 500, timeout=7200), jobs)
     for (board, _), proc in zip(jobs, procs):
-        tot = passed(proc)
+        tot = check_passed(proc)
         sys.stderr.write(f"{board}: {json.dumps(tot)}\n")
         assert tot["samples"] >= 5_399_980 and tot["watchdog_resets"] == 0

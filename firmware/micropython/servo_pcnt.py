@@ -141,7 +141,7 @@ class ServoPulsePcnt(ServoPulse):
         if self._anchor_t >= 0:
             fall = time.ticks_add(self._anchor_t, acc - self._anchor_acc)
             self._learn_period(time.ticks_add(fall, -acc))
-        else:  # the whole pulse between two polls: its fall is in [t_last + acc, t]
+        else:  # the whole pulse between two polls: it fell between acc after t_last and t
             fall = self._place(acc, time.ticks_add(t_last, acc), t)
             self.unanchored += 1
         rises = self._rises
