@@ -51,7 +51,7 @@ class BackgroundDiagnosis:
         if self.text is None:
             if self.proc is not None:
                 return f"diagnosis: looking at the first {self.running_at:.0f} s of driving ..."
-            return f"diagnosis: after {MIN_DRIVING_S:.0f} s of driving"
+            return f"diagnosis: once {MIN_DRIVING_S:.0f} s of driving are recorded"
         return self.text
 
     def _start(self, driving_s: float) -> None:

@@ -67,13 +67,8 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                 up.done = done_line(up)
             if diag is not None:
                 up.diagnosis = diag.poll(up.driving_s, snap.finished)
-                if diag.effect and up.params and not up.done:
-                    # a model without what the car has: its residual is model error, which more
-                    # driving does not shrink as the plan assumes
-                    line = (f"a model with what the diagnosis names: --model {model}+{diag.effect} "
-                            "(the fit then misses less)")
-                    if line not in up.lacking:
-                        up.lacking = up.lacking + [line]
+                if diag.effect and up.params:
+                    with_named_effect(up, model, diag.effect)
             said = (up.seq, tuple(up.state), up.diagnosis, tuple(up.lacking), up.done)
             if said != shown:  # (an unchanged file and nothing new to say: nothing is shown again)
                 _show(view, server, up, json_lines, stream)
@@ -110,6 +105,17 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
         if server is not None:
             server.close()
     return 0
+
+
+def with_named_effect(up, model: str, effect: str) -> None:
+    """The diagnosis names an effect the watched model lacks: its residual is model error, which
+    more driving does not shrink as the plan assumes, and its intervals hold only if the model
+    were right, so a reached target is not the answer: no "done", and what to add instead."""
+    up.done = None
+    line = (f"a model with what the diagnosis names: --model {model}+{effect} (the fit then misses less; "
+            f"without {effect} a reached target is not the answer: the intervals hold only if the model were right)")
+    if line not in up.lacking:
+        up.lacking = up.lacking + [line]
 
 
 def _read_messages(stdin, msgs: queue.Queue, done: threading.Event) -> None:
