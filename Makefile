@@ -34,7 +34,7 @@ demo: $(STAMP)
 	$(BIN)/python -m hil_sim.demo
 
 test: $(STAMP) $(MP31_STAMP)
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadgroup
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run

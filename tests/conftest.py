@@ -17,6 +17,18 @@ MP_TESTS = Path(__file__).resolve().parent / "firmware_mp"
 VECTORS = REPO / "firmware" / "vectors" / "vectors.json"
 
 
+# Tests that run a logger in real time on pseudo-terminals: with `make test`'s parallel workers
+# (pytest-xdist, --dist loadgroup) they share one worker and so run one after another, as a user
+# runs one car, one logger and one live view; the other worker's fits load the CPU meanwhile.
+REAL_TIME_PTY_MODULES = ("test_live_realtime", "test_log_port", "test_logger_e2e")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.module.__name__.rsplit(".", 1)[-1] in REAL_TIME_PTY_MODULES:
+            item.add_marker(pytest.mark.xdist_group("real-time-pty"))
+
+
 def tool(name: str) -> str:
     """A console tool of this environment (the venv's bin, then PATH)."""
     here = Path(sys.executable).parent / name
