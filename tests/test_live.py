@@ -197,6 +197,24 @@ def test_no_done_for_a_model_the_diagnosis_says_lacks_an_effect(car, tmp_path):
     assert any("--model bicycle+actuator_lag" in x and "reached target is not the answer" in x for x in up.lacking), up.lacking
     with_named_effect(up, "bicycle", "actuator_lag")  # said once, however often the view updates
     assert sum("actuator_lag" in x for x in up.lacking) == 1
+    assert "actuator_lag" in up.lacking[0]  # first: more driving with this model does not help
+
+
+def test_no_done_before_the_diagnosis_has_answered(car, tmp_path):
+    """A trial run: 12 s of a car with a servo lag and an offset accelerometer, watched with
+    bicycle+actuator_lag and loose targets, printed done with every interval off the truth while
+    the diagnosis still waited for 15 s of driving."""
+    from stid.live.estimator import Estimator
+    from stid.live.follow import before_the_diagnosis
+    from stid.live.source import Source
+
+    run = tmp_path / "run.csv"
+    bicycle_csv(run, 30.0, seed=5)
+    up = Estimator(_vehicle(car), "bicycle", {"Cf": 20.0, "Cr": 20.0, "Iz": 20.0}, "test").update(
+        Source(run, _vehicle(car)).poll(), run.name)
+    assert up.done
+    before_the_diagnosis(up)
+    assert up.done is None and up.lacking[0].startswith("the diagnosis (once 15 s of driving")
 
 
 def _asked(line: str):

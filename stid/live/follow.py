@@ -21,7 +21,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from stid.live.diagnosis import BackgroundDiagnosis
+from stid.live.diagnosis import MIN_DRIVING_S, BackgroundDiagnosis
 from stid.live.estimator import Estimator, done_line
 from stid.live.source import Source
 from stid.live.terminal import TerminalView
@@ -69,6 +69,8 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                 up.diagnosis = diag.poll(up.driving_s, snap.finished)
                 if diag.effect and up.params:
                     with_named_effect(up, model, diag.effect)
+                elif up.done and diag.text is None:
+                    before_the_diagnosis(up)
             said = (up.seq, tuple(up.state), up.diagnosis, tuple(up.lacking), up.done)
             if said != shown:  # (an unchanged file and nothing new to say: nothing is shown again)
                 _show(view, server, up, json_lines, stream)
@@ -114,8 +116,19 @@ def with_named_effect(up, model: str, effect: str) -> None:
     up.done = None
     line = (f"a model with what the diagnosis names: --model {model}+{effect} (the fit then misses less; "
             f"without {effect} a reached target is not the answer: the intervals hold only if the model were right)")
+    if line not in up.lacking:  # first: more driving with this model does not help
+        up.lacking = [line] + up.lacking
+
+
+def before_the_diagnosis(up) -> None:
+    """Targets reached before the diagnosis has answered: whether the model lacks an effect
+    decides whether they are the answer (a model missing a servo lag reaches tight intervals
+    around the wrong values), so no "done" yet."""
+    up.done = None
+    line = (f"the diagnosis (once {MIN_DRIVING_S:.0f} s of driving are recorded): the targets are reached, but "
+            "only a model that lacks nothing the data show makes them the answer")
     if line not in up.lacking:
-        up.lacking = up.lacking + [line]
+        up.lacking = [line] + up.lacking
 
 
 def _read_messages(stdin, msgs: queue.Queue, done: threading.Event) -> None:

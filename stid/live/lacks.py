@@ -38,8 +38,8 @@ def lacking(runs, res, model, params: list) -> list[str]:
     when there is none); ``params``: its ParamState list (with the targets)."""
     out = []
     if any(r.meta.get("gyro_bias") is None and r.meta.get("format") == "mcap" for r in runs):
-        out.append(f"stand still {STILL_S:g} s for the gyro zero (no stand-still in the data yet: the gyro's "
-                   "bias is not removed)")
+        out.append(f"stand still {STILL_S:g} s for the gyro zero (no stand-still of {STILL_S:g} s in the data yet: "
+                   "the gyro's bias is not removed)")
     if res is None:
         out.append("drive: random steer (1-4 deg) at a steady speed; nothing to fit yet")
         return out
