@@ -100,6 +100,10 @@ def _load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     if path.suffix.lower() == ".mcap":
         raise InputError(f"{path} is named .mcap but is not an MCAP file (no MCAP magic at its start): "
                          "corrupted, or not written by stid-log")
+    if path.suffix.lower() in (".bag", ".db3"):
+        raise InputError(f"{path} is named {path.suffix} but is not a ROS bag (a ROS 1 bag starts with "
+                         "'#ROSBAG V2.0', a ROS 2 .db3 is an SQLite file beside its metadata.yaml): corrupted, "
+                         "cut short, or not a bag (docs/ros.md)")
     if path.suffix.lower() == ".toml":  # the mirror of a run given as --vehicle
         raise InputError(f"{path} is a vehicle file, not a run: give the runs (RUN.mcap or RUN.csv) first and "
                          "the vehicle file after --vehicle")

@@ -43,7 +43,9 @@ def _command(runs, vehicle_path, *rest) -> str:
 def _screened_line(d) -> str:
     """The candidates the linearised screen kept from a full fit, grouped by why."""
     groups = {"chance": [], "small": [], "capped": []}
-    for c in d.candidates:
+    # largest predicted gain first (the screen ranks by its test statistic, which the points
+    # shown here need not follow)
+    for c in sorted(d.candidates, key=lambda c: -max(c.gain.values()) if c.gain else 0.0):
         if c.result is None and not c.skipped:
             gain = max(c.gain.values()) if c.gain else 0.0
             groups[c.screen.get("why", "small")].append(

@@ -99,7 +99,8 @@ def error_fall_figure(chain, floor):
     axes[0].set_ylabel("fit [%]  100 (1 - |y - yhat| / |y - mean y|)")
     lo = max(min(min(min(res.fit.values()) for _, res in chain) - 5, 90), -50)
     axes[0].set_ylim(lo, 100 + 0.08 * (100 - lo))  # (room above 100% for the values written over the points)
-    fig.suptitle("The error falls as the missing effects are added")
+    fig.suptitle("The error falls as the missing effects are added" if len(chain) > 1 else
+                 f"The fit of {chain[0][0]} (the diagnosis named nothing to add)")
     fig.tight_layout(rect=(0, 0, 1, 0.93))  # (room for the title above the panels' own)
     return fig
 
@@ -488,13 +489,16 @@ def write_report(runs, vehicle, out_dir, model_name: str = "bicycle", progress=N
                 "The diagnosis names no missing effect. ")
              + "The noise floor (what a correct model reaches on this data) is "
              + ", ".join(f"{o} {floor[o]:.1f}%" if np.isfinite(floor[o]) else f"{o} not determined" for o in ("ay", "r"))
-             + ". The whole diagnosis, in words, is at the end of the page.")
+             + (". " if all(np.isfinite(floor[o]) for o in ("ay", "r")) else
+                f": without it, nothing here says how far {last_name} is from a correct model"
+                + (", and no effect named is not a model found complete. " if not found else ". "))
+             + "The whole diagnosis, in words, is at the end of the page.")
     parts = [f"<h1>stid report: {html.escape(vehicle.name)}</h1>",
              f"<p>{len(runs)} run(s): {html.escape(', '.join(r.name for r in runs))}. "
              f"Generated {time.strftime('%Y-%m-%d %H:%M')}. Units SI, ISO 8855 axes (x forward, y left, z up), "
              "cornering stiffness per axle in N/rad.</p>",
              f"<p class='story'>{html.escape(story)}</p>",
-             _figure("The error falls", error_fall_figure(chain, floor)),
+             _figure("The error falls" if len(chain) > 1 else "The fit", error_fall_figure(chain, floor)),
              _figure("The logged runs", overview_figure(runs)),
              "<h2>Along the chain</h2>"]
     for k, (name, res) in enumerate(chain):

@@ -182,7 +182,7 @@ def _judge(top, partner: str, both, n_eff, gap) -> PairTry:
         t.verdict, t.why = NOTHING, "its joint fit did not converge: " + both.status.split("not an optimum: ")[-1]
     elif t.p_value >= top.level:
         # it sits at or near its off value: a joint fit that is the first alone is no second opinion
-        t.verdict, t.why = NOTHING, f"adds {p_in_words(t.p_value, top.level)} to {top.effect}"
+        t.verdict, t.why = NOTHING, f"beside {top.effect}: {p_in_words(t.p_value, top.level)}"
     elif not any(t.gain[o] >= need[o] for o in OUTS):
         t.verdict, t.why = NOTHING, ("adds too little to " + top.effect + ": "
                                      + ", ".join(f"{o} {t.gain[o]:+.2f}" for o in OUTS) + " fit points")
