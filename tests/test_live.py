@@ -21,6 +21,7 @@ import sys
 import time
 import urllib.request
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -435,6 +436,13 @@ def test_terminal_redraws_in_place_and_keeps_messages_above_and_piped_is_plain_l
     after = text.rsplit("the port went away", 1)[1]
     assert "update 2" in after and "\x1b[" in after  # the message stays; the table comes back below it
     assert "±4.0%" in text and "not yet" in text
+    narrow = io.StringIO()  # a long line is wrapped, never cut: its end still reaches the driver
+    up = _update()
+    up.done = "done: every target of bicycle is reached after 60 s of data (Iz ±2.9% (≤ 3%)); the run is enough"
+    with mock.patch("shutil.get_terminal_size", return_value=os.terminal_size((40, 24))):
+        TerminalView(narrow, tty=True).show(up)
+    shown = narrow.getvalue().splitlines()
+    assert all(len(line) < 40 for line in shown) and "the run is enough" in " ".join(x.strip() for x in shown)
     piped = io.StringIO()
     tv = TerminalView(piped, tty=False)
     tv.show(_update())

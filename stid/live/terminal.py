@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import textwrap
 import time
 
 from stid.live.estimator import Update
@@ -58,7 +59,11 @@ class TerminalView:
         lines = render(up)
         if self.tty:
             width = shutil.get_terminal_size((100, 24)).columns
-            lines = [line[:width - 1] for line in lines]  # a wrapped line would break the redraw
+            # wrapped here, each piece a line the redraw counts (a line the terminal wraps itself
+            # would break the redraw, and one cut short would lose its end: "the run is enough")
+            lines = [piece for line in lines for piece in
+                     (textwrap.wrap(line, width - 1, subsequent_indent=" " * (len(line) - len(line.lstrip()) + 4))
+                      or [""])]
             self._erase()
             self.stream.write("\n".join(lines) + "\n")
             self._drawn = len(lines)
