@@ -479,7 +479,8 @@ def stop_words(reason) -> str:
     if reason == "duration":
         return "stopped after --duration"
     if reason == "port gone":
-        return "stopped: the port was unplugged and did not come back within --reconnect-timeout"
+        return ("stopped: the port went away (unplugged, or the car or simulator on it closed it) and did not "
+                "come back within --reconnect-timeout")
     if reason in ("SIGINT", "SIGTERM", "SIGHUP"):
         return {"SIGINT": "stopped by Ctrl-C", "SIGTERM": "stopped by SIGTERM (kill)",
                 "SIGHUP": "stopped: its terminal closed (SIGHUP)"}[reason]

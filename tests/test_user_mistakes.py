@@ -95,6 +95,6 @@ def test_the_loggers_summary_says_why_it_stopped_in_words():
     stats = {"errors": {"crc": 0}, "file": "run.mcap", "samples": 10, "frames": {"samples": 1}, "lost_frames": 0,
              "missing_samples": 0, "mcu_overruns": 0, "gaps": []}
     said = {reason: summary_line(dict(stats, stop=reason)) for reason in ("port gone", "duration", "SIGINT")}
-    assert "[" not in said["port gone"] and "unplugged and did not come back" in said["port gone"]
+    assert "[" not in said["port gone"] and "went away (unplugged" in said["port gone"] and "did not come back" in said["port gone"]
     assert said["duration"].endswith("stopped after --duration")
     assert said["SIGINT"].endswith("stopped by Ctrl-C")
