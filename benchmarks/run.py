@@ -14,7 +14,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def _rows(quick: bool, data_dir):
-    from benchmarks import accuracy_bench, firmware_bench, ident_bench, live_bench, logger_bench, ros_bench
+    from benchmarks import firmware_bench, ident_bench, live_bench, logger_bench, ros_bench
 
     host0 = ident_bench.host_speed()
     t = logger_bench.throughput(quick)

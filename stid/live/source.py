@@ -111,7 +111,7 @@ class Source:
         if recording is not None:
             for r in runs:
                 r.name = r.name.replace(path.name, recording.name)
-            snap.state.append(f"a ROS 2 bag being recorded: read up to its last complete chunk")
+            snap.state.append("a ROS 2 bag being recorded: read up to its last complete chunk")
         return snap
 
     def _scratch(self) -> Path:
