@@ -59,7 +59,7 @@ def _section(b, a, x: np.ndarray, x_past: np.ndarray) -> np.ndarray:
     rhs[0] -= (a[1] + a[2]) * y_past
     if n > 1:
         rhs[1] -= a[2] * y_past
-    band = np.zeros((3, n))
+    band = np.zeros((3, n), order="F")  # LAPACK's layout: no copy on the way in
     band[0] = 1.0
     band[1, :-1] = a[1]
     band[2, :-2] = a[2]
