@@ -90,7 +90,7 @@ def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", 
     fs = run.fs
     q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
     # every signal at once, one column each: the same numbers as one by one (each column is
-    # filtered on its own), in a third of the time (the band solves share their set-up)
+    # filtered on its own); one call into scipy.signal's compiled filter where stid live uses it
     cols = np.column_stack([getattr(run, n) if hasattr(run, n) and getattr(run, n) is not None else run.extra[n]
                             for n in names])
     smooth = prefilter(cols, fs)
