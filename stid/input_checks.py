@@ -183,8 +183,8 @@ def scale_gain(run):
     moving[:edge] = moving[-edge:] = False
     if moving.sum() < 4:
         return None
-    lp = lambda v: filters.sosfiltfilt(sos, np.asarray(v, float))  # noqa: E731
-    x, y = lp(vx * run.r)[moving], lp(run.ay)[moving]
+    # both at once, a column each (the same numbers as one by one, in less time)
+    x, y = filters.sosfiltfilt(sos, np.column_stack([vx * run.r, run.ay]))[moving].T
     xc, yc = x - x.mean(), y - y.mean()
     if float(np.sqrt(np.mean(xc ** 2))) < MIN_CORNERING:
         return None
@@ -248,8 +248,8 @@ def _kinematic_gains(run):
     sos = filters.butter_lowpass_sos(2, LOWPASS_HZ, fs)
     # one period of LOWPASS_HZ at either end is the filter's start-up: left out
     moving[: int(fs / LOWPASS_HZ)] = moving[-int(fs / LOWPASS_HZ):] = False
-    lp = lambda v: filters.sosfiltfilt(sos, np.asarray(v, float))  # noqa: E731
-    x, y = lp(vx * run.r)[moving], lp(run.ay)[moving]
+    # all four at once, a column each (the same numbers as one by one, in less time)
+    x, y, s, rr = filters.sosfiltfilt(sos, np.column_stack([vx * run.r, run.ay, vx * run.steer, run.r]))[moving].T
     xc, yc = x - x.mean(), y - y.mean()
     spread = float(np.sqrt(np.mean(xc ** 2)))
     if spread < MIN_CORNERING:
@@ -259,8 +259,6 @@ def _kinematic_gains(run):
         return f"ay follows vx*r only weakly (correlation {corr:.2f})"
     gain = float(np.sum(xc * yc) / np.sum(xc ** 2))
     # r against vx*steer: positive for a car below its critical speed, at any steering ratio
-    s = lp(vx * run.steer)[moving]
-    rr = lp(run.r)[moving]
     sc, rc = s - s.mean(), rr - rr.mean()
     den = np.sqrt(np.sum(sc ** 2) * np.sum(rc ** 2))
     c = float(np.sum(sc * rc) / den) if den > 0 else 0.0

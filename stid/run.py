@@ -47,10 +47,15 @@ class Run:
     extra: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
     valid: np.ndarray | None = None
+    _fs_of: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (t, its fs)
 
     @property
     def fs(self) -> float:
-        return 1.0 / float(np.median(np.diff(self.t)))
+        # a median over every sample, asked for dozens of times per command (each live update
+        # too): kept while t is the same array (held, so its id cannot be reused)
+        if self._fs_of is None or self._fs_of[0] is not self.t:
+            self._fs_of = (self.t, 1.0 / float(np.median(np.diff(self.t))))
+        return self._fs_of[1]
 
     @property
     def dt(self) -> float:

@@ -21,9 +21,11 @@ def autocorrelation(e: np.ndarray, max_lag: int) -> np.ndarray:
         out = np.zeros(max_lag + 1)
         out[0] = 1.0
         return out
-    # zero-padded to a power of two (>= 2n - 1: still the linear autocorrelation): at 2n a
-    # length with a large prime factor (n = 57,924 samples) took numpy 85-100 ms, not 3
-    m = 1 << int(np.ceil(np.log2(2 * n - 1)))
+    # zero-padded to a power of two: at 2n a length with a large prime factor (n = 57,924
+    # samples) took numpy 85-100 ms, not 3. n + max_lag of them keep the lags returned linear
+    # (a circular lag k wraps onto k - m, beyond the series when m >= n + k): half the length
+    # 2n - 1 would need, for the few lags the callers ask
+    m = 1 << int(np.ceil(np.log2(n + min(max_lag, n - 1))))
     f = np.fft.rfft(e, m)
     ac = np.fft.irfft(f * np.conj(f), m)[: max_lag + 1]
     return ac / ac[0]

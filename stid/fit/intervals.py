@@ -52,11 +52,25 @@ def jackknife_cov(J: np.ndarray, r: np.ndarray, row_block, K: int) -> np.ndarray
     r are the Jacobian and residuals at the optimum, ``row_block`` each row's block (0..K-1)."""
     if row_block is None or K < K_MIN:
         return None
+    # each block's share of the normal equations, in one pass: a refit without block b solves
+    # (H - H_b) step = -(g - g_b), a p x p system, not a least-squares problem on seven eighths
+    # of the rows (a copy of them each); when that system is ill-conditioned (squaring the
+    # Jacobian's condition loses digits) the rows themselves are solved, as before
+    Hs = np.zeros((K, J.shape[1], J.shape[1]))
+    gs = np.zeros((K, J.shape[1]))
+    for b in range(K):
+        rows = row_block == b
+        Hs[b] = J[rows].T @ J[rows]
+        gs[b] = J[rows].T @ r[rows]
+    H, g = Hs.sum(axis=0), gs.sum(axis=0)
     xs = []
     for b in range(K):
+        Hb = H - Hs[b]
+        if np.linalg.cond(Hb) < 1e8:
+            xs.append(np.linalg.solve(Hb, -(g - gs[b])))
+            continue
         keep = row_block != b
-        Jb, rb = J[keep], r[keep]
-        step, *_ = np.linalg.lstsq(Jb, -rb, rcond=None)
+        step, *_ = np.linalg.lstsq(J[keep], -r[keep], rcond=None)
         xs.append(step)
     xs = np.array(xs)
     d = xs - xs.mean(axis=0)

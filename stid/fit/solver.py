@@ -93,19 +93,26 @@ def starting_points(model, space: ParamSpace, p0: dict, multistart: bool) -> lis
 SETTLED_COST = 0.5 * 0.1 ** 2
 
 
-def settled(tol: float = SETTLED_COST, initial=None):
+def settled(tol: float = SETTLED_COST, initial=None, to_lose=None):
     """A callback for scipy's trf that stops the solve when the cost still to lose is below
     ``tol``, estimated from the last three reductions as a geometric series (the slower of
     the last two ratios, so one lucky step does not end it). ``initial()``: the cost at the
     start, which scipy does not report: with it the first three iterations can settle a
     solve (else a solve that starts near its optimum takes a fourth, in which the trust
-    region shrinks step after step because no step can lower the cost any more)."""
+    region shrinks step after step because no step can lower the cost any more).
+    ``to_lose(x)``: the cost still to lose at x as the solver's own model predicts it (the
+    Gauss-Newton decrement, or None): a solve started next to its optimum, whose first step
+    lands there, ends after that step instead of three."""
     costs = []
 
     def callback(intermediate_result):
         if not costs and initial is not None:
             costs.append(float(initial()))
         costs.append(float(intermediate_result.cost))
+        if to_lose is not None:
+            left = to_lose(intermediate_result.x)
+            if left is not None and left < tol:
+                raise StopIteration
         if len(costs) < 4:
             return
         d = -np.diff(costs[-4:])
@@ -133,6 +140,7 @@ class _Residuals:
         self.diff_step = diff_step
         self.known = known
         self.last = None  # (x, f) of the newest evaluation: the differences start from it
+        self.last_jac = None  # (x, f, J) of the newest Jacobian
         self.first_cost = None  # at the start (the stopping rule's first term)
 
     def fun(self, x):
@@ -146,7 +154,8 @@ class _Residuals:
         return f
 
     def jac(self, x):
-        if self.known is not None and np.array_equal(x, self.known[0]):
+        if self.known is not None and self.known[2] is not None and np.array_equal(x, self.known[0]):
+            self.last_jac = (np.array(x, float), self.known[1], self.known[2])
             return self.known[2]
         if self.last is None or not np.array_equal(self.last[0], x):
             self.fun(x)
@@ -158,7 +167,25 @@ class _Residuals:
             x1[i] = x[i] + h[i]
             J[:, i] = (self.residual(self.space.to_p(x1)) - f0) / (x1[i] - x[i])
         self.last = (np.array(x, float), f0)
+        self.last_jac = (self.last[0], f0, J)
         return J
+
+    def decrement(self, x):
+        """The cost a full Gauss-Newton step from x would lose (0.5 |J s|^2, s the step):
+        what is still to lose if the cost is as quadratic as the Jacobian says; None when
+        x is not where the newest Jacobian was taken, or it has no full rank."""
+        if self.last_jac is None or not np.array_equal(self.last_jac[0], x):
+            return None
+        _, f, J = self.last_jac
+        g = J.T @ f
+        H = J.T @ J
+        try:
+            s = np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(s)):
+            return None
+        return 0.5 * float(g @ s)
 
     def _steps(self, x):
         """scipy.optimize._numdiff's absolute steps for '2-point' within the bounds."""
@@ -176,12 +203,15 @@ class _Residuals:
 
 
 def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = False, known=None,
-                  colour: float = 1.0, **kw):
+                  colour: float = 1.0, near: bool = False, **kw):
     """Run scipy's bounded trust-region least squares from each start; keep the best.
     ``unit_noise``: the residuals are scaled to unit noise, so the solve may stop once
     it is statistically at the optimum (SETTLED_COST), in standard errors of residuals
-    whose integrated autocorrelation time is ``colour`` samples. ``known``: (x, residuals,
-    Jacobian) at the first start, in the solver's coordinates, when the caller has them."""
+    whose integrated autocorrelation time is ``colour`` samples; ``near`` (with unit_noise):
+    the start is next to the optimum (the optimum of most of the same data), so the solve
+    also stops once the Gauss-Newton decrement says it is there. ``known``: (x, residuals,
+    Jacobian) at the first start, in the solver's coordinates, when the caller has them
+    (the Jacobian may be None: then only the residuals are known)."""
     lo, hi = space.bounds_x()
     diff_step = None
     if getattr(space.model, "nonlinear", False):
@@ -198,7 +228,8 @@ def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = 
         prob = _Residuals(residual, space, lo, hi, diff_step,
                           (x0, known[1], known[2]) if start_known is not None else None)
         if unit_noise:
-            kw["callback"] = settled(SETTLED_COST * max(float(colour), 1.0), initial=lambda: prob.first_cost)
+            kw["callback"] = settled(SETTLED_COST * max(float(colour), 1.0), initial=lambda: prob.first_cost,
+                                     to_lose=prob.decrement if near else None)
         try:
             res = optimize.least_squares(prob.fun, x0, jac=prob.jac, bounds=(lo, hi), method="trf",
                                          x_scale="jac", **kw)

@@ -79,8 +79,9 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     # linearly on a model that misses an effect
     solve_kw = {"ftol": 1e-4} if reweight else {}
     if settle and not reweight:
-        r_start = residual(starts[0], sigma).reshape(-1, 2) * sigma
-        solve_kw = {"unit_noise": True, "colour": _colour(r_start, keeps, stretches[0].dt)}
+        f_start = residual(starts[0], sigma)  # the solve starts there: its residuals are known
+        solve_kw = {"unit_noise": True, "near": True, "known": (space.to_x(starts[0]), f_start, None),
+                    "colour": _colour(f_start.reshape(-1, 2) * sigma, keeps, stretches[0].dt)}
     res = least_squares(lambda p: residual(p, sigma), space, starts, **solve_kw)
     p_hat = space.to_p(res.x)
     # maximum likelihood: weight each output by its own residual level, refine once
