@@ -31,9 +31,18 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
         # the command has what it needs (or was interrupted, or failed): whatever a worker is
         # still doing is of no use (a fit started ahead of need), and is not waited for.
         # Terminated before the shutdown: the other order hangs at interpreter exit
-        procs = getattr(ex, "_processes", None) or {}  # (the executor has no public way to stop them)
-        for proc in list(procs.values()):
+        procs = list((getattr(ex, "_processes", None) or {}).values())  # (no public way to stop them)
+        for proc in procs:
             proc.terminate()
+        for proc in procs:
+            proc.join()
+        # A worker stopped while it wrote a result leaves half a message in the result pipe, and
+        # the executor's thread waits for the rest for ever (shutdown then hangs: a diagnosis
+        # that never returned, seen once in the suite). This process holds the pipe's last
+        # writing end: closed, the half message ends in EOF and the executor sees a broken pool.
+        writer = getattr(getattr(ex, "_result_queue", None), "_writer", None)
+        if writer is not None:
+            writer.close()
         ex.shutdown(wait=True, cancel_futures=True)
 
 

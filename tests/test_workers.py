@@ -33,3 +33,27 @@ def test_ctrl_c_ends_the_command_and_its_workers_without_their_tracebacks():
     assert out.returncode == 130, out.stderr
     assert out.stderr.strip() == "interrupted", out.stderr
     assert took < 15, took  # the 30 s jobs were stopped, not waited for
+
+
+_HALF_WRITTEN = r"""
+import time
+from stid.workers import worker_pool
+
+def result(n):
+    return b"x" * n  # pickled and written to the result pipe piece by piece
+
+for wait in (0.05, 0.1, 0.2):
+    with worker_pool(2) as pool:
+        jobs = [pool.submit(result, 10_000_000) for _ in range(4)]
+        time.sleep(wait)  # the workers are writing their results when the pool ends
+print("ended")
+"""
+
+
+def test_a_pool_ended_while_its_workers_write_results_does_not_hang():
+    """A worker stopped in the middle of writing a result left half a message in the pipe, and
+    the pool's exit waited for the rest for ever (a `stid diagnose` in the suite never returned;
+    this script hung on its first pool before the fix)."""
+    out = subprocess.run([sys.executable, "-c", _HALF_WRITTEN], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == "ended", out.stderr
+    assert "Traceback" not in out.stderr, out.stderr
