@@ -30,14 +30,7 @@ class ServoPulse:
     if that one was not stale: a pulse from before an outage never comes back."""
 
     def __init__(self, pin_no, timeout_us):
-        self.pin = Pin(pin_no, Pin.IN)
-        self.timeout_us = timeout_us
-        self.width = 0
-        self.t_fall = 0
-        self.t_read = 0  # falling edge of the pulse the last read() returned
-        self._stale = 0  # t_fall of a pulse found older than the timeout: 0 until a new edge
-        self.w_prev = 0  # the pulse before the latest (read(before=...) may need it); 0: none
-        self.f_prev = 0
+        self._start(pin_no, timeout_us)
         self._t_rise = 0
         self._high = False
         _irq(self.pin, self._edge, Pin.IRQ_RISING | Pin.IRQ_FALLING)
@@ -52,6 +45,17 @@ class ServoPulse:
             w = time.ticks_diff(t, self._t_rise)
             if _MIN_PULSE_US <= w <= _MAX_PULSE_US:
                 self.new_pulse(w, t)
+
+    def _start(self, pin_no, timeout_us):
+        # the state every way of timing the pulse keeps (pin IRQs here, PIO, the ESP32's PCNT)
+        self.pin = Pin(pin_no, Pin.IN)
+        self.timeout_us = timeout_us
+        self.width = 0
+        self.t_fall = 0
+        self.t_read = 0  # falling edge of the pulse the last read() returned
+        self._stale = 0  # t_fall of a pulse found older than the timeout: 0 until a new edge
+        self.w_prev = 0  # the pulse before the latest (read(before=...) may need it); 0: none
+        self.f_prev = 0
 
     def new_pulse(self, w, t_fall):
         # a valid pulse of width w [us] fell at t_fall (called by whatever times it)

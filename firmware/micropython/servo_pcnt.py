@@ -53,14 +53,7 @@ class ServoPulsePcnt(ServoPulse):
     latest valid pulse; read(now) is called by the sampler every period."""
 
     def __init__(self, pin_no, timeout_us, clock_pin, units=(0, 1)):
-        self.pin = Pin(pin_no, Pin.IN)
-        self.timeout_us = timeout_us
-        self.width = 0
-        self.t_fall = 0
-        self.t_read = 0
-        self._stale = 0
-        self.w_prev = 0  # the pulse before the latest (read(before=...) may need it)
-        self.f_prev = 0
+        self._start(pin_no, timeout_us)
         self.unanchored = 0  # pulses no poll saw high: fall time from the span it lies in
         self.merged = 0  # poll gaps that held more than one pulse: dropped
         clk = Pin(clock_pin)

@@ -72,14 +72,7 @@ class ServoPulsePio(ServoPulse):
     latest valid pulse; read(now) is called by the sampler every period."""
 
     def __init__(self, pin_no, timeout_us, sm_id=0):
-        self.pin = Pin(pin_no, Pin.IN)
-        self.timeout_us = timeout_us
-        self.width = 0
-        self.t_fall = 0
-        self.t_read = 0
-        self._stale = 0
-        self.w_prev = 0  # the pulse before the latest (read(before=...) may need it)
-        self.f_prev = 0
+        self._start(pin_no, timeout_us)
         self.resyncs = 0  # word pairs that did not make a pulse: one word dropped to realign
         self._sm = rp2.StateMachine(sm_id, pulse_counter, freq=SM_FREQ, jmp_pin=self.pin)
         t_a = time.ticks_us()
