@@ -113,20 +113,23 @@ def with_named_effect(up, model: str, effect: str) -> None:
     """The diagnosis names an effect the watched model lacks: its residual is model error, which
     more driving does not shrink as the plan assumes, and its intervals hold only if the model
     were right, so a reached target is not the answer: no "done", and what to add instead."""
-    up.done = None
-    line = (f"a model with what the diagnosis names: --model {model}+{effect} (the fit then misses less; "
-            f"without {effect} a reached target is not the answer: the intervals hold only if the model were right)")
-    if line not in up.lacking:  # first: more driving with this model does not help
-        up.lacking = [line] + up.lacking
+    _instead_of_done(up, f"a model with what the diagnosis names: --model {model}+{effect} (the fit then misses "
+                         f"less; without {effect} a reached target is not the answer: the intervals hold only if "
+                         "the model were right)")
 
 
 def before_the_diagnosis(up) -> None:
     """Targets reached before the diagnosis has answered: whether the model lacks an effect
     decides whether they are the answer (a model missing a servo lag reaches tight intervals
     around the wrong values), so no "done" yet."""
+    _instead_of_done(up, f"the diagnosis (once {MIN_DRIVING_S:.0f} s of driving are recorded): the targets are "
+                         "reached, but only a model that lacks nothing the data show makes them the answer")
+
+
+def _instead_of_done(up, line: str) -> None:
+    """No "done"; ``line`` first of what is lacking (more driving with this model does not help),
+    once however often the view updates."""
     up.done = None
-    line = (f"the diagnosis (once {MIN_DRIVING_S:.0f} s of driving are recorded): the targets are reached, but "
-            "only a model that lacks nothing the data show makes them the answer")
     if line not in up.lacking:
         up.lacking = [line] + up.lacking
 
