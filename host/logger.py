@@ -92,8 +92,10 @@ def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial
     except serial.SerialException as e:
         err = e.errno if isinstance(e.errno, int) else getattr(e.__context__, "errno", None)
         if err in (errno.EAGAIN, errno.EWOULDBLOCK):
-            raise PortError(f"{path} is already in use by another program (another stid-log?); "
-                            "stop it first, one logger per port") from None
+            holders = port_holders(path)
+            who = (", ".join(f"{name} (pid {pid})" for pid, name in holders) if holders
+                   else "another program (another stid-log?)")
+            raise PortError(f"{path} is already in use by {who}; stop it first, one logger per port") from None
         if err == errno.ENOENT or not os.path.exists(path):
             raise PortError(f"serial port {path} does not exist; plug the car in, or list ports with "
                             "'python -m serial.tools.list_ports'") from None
@@ -107,6 +109,32 @@ def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial
                             "give the car's port, e.g. /dev/ttyACM0 or /dev/ttyUSB0; to read a recorded "
                             "file use stid, e.g. 'stid fit FILE'") from None
         raise PortError(f"cannot open {path}: {e}") from None
+
+
+def port_holders(path: str) -> list[tuple[int, str]]:
+    """The processes that have ``path``'s device open (Linux: /proc/PID/fd), as (pid, command
+    line), so that "in use" names which program to stop. Empty where /proc says nothing."""
+    try:
+        real = os.path.realpath(path)
+        pids = [d for d in os.listdir("/proc") if d.isdigit() and int(d) != os.getpid()]
+    except OSError:
+        return []
+    found = []
+    for pid in pids:
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+            if not any(os.readlink(f"/proc/{pid}/fd/{fd}") == real for fd in fds):
+                continue
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                argv = [a.decode(errors="replace") for a in f.read().split(b"\0") if a]
+        except OSError:  # gone meanwhile, or another user's
+            continue
+        # the program and its first arguments: "stid-log /dev/ttyACM0 -o run.mcap", not a full path
+        words = [os.path.basename(argv[0])] + argv[1:4] if argv else ["?"]
+        if len(words) > 1 and words[0].startswith("python") and argv[1:]:
+            words = [os.path.basename(argv[1])] + argv[2:5]
+        found.append((int(pid), " ".join(words)))
+    return found
 
 
 def port_identity(path: str) -> dict:

@@ -29,6 +29,46 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.xdist_group("real-time-pty"))
 
 
+def _processes_naming(text: str) -> list[tuple[int, str]]:
+    """Live processes whose command line contains ``text`` (Linux /proc)."""
+    found = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                cmd = f.read().replace(b"\0", b" ").decode(errors="replace")
+            with open(f"/proc/{pid}/stat") as f:
+                zombie = f.read().rsplit(")", 1)[1].split()[0] == "Z"
+        except OSError:
+            continue
+        if text in cmd and not zombie and int(pid) != os.getpid():
+            found.append((int(pid), cmd.strip()))
+    return found
+
+
+@pytest.fixture(autouse=True)
+def _no_logger_outlives_its_test(request):
+    """A logger (or simulator, or live view) left running by a real-time test would hold a
+    pty whose number the next test's simulator gets again, and that test's logger would find
+    the port "in use". Each is stopped here, and the test that left it fails."""
+    if request.node.module.__name__.rsplit(".", 1)[-1] not in REAL_TIME_PTY_MODULES:
+        yield
+        return
+    tmp = request.getfixturevalue("tmp_path")
+    yield
+    import signal
+    import time
+
+    deadline = time.monotonic() + 5  # a process a test has just stopped may take a moment to go
+    while (left := _processes_naming(str(tmp))) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    for pid, _ in left:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+    assert not left, f"processes left running by this test: {left}"
+
+
 def tool(name: str) -> str:
     """A console tool of this environment (the venv's bin, then PATH)."""
     here = Path(sys.executable).parent / name

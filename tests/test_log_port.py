@@ -119,7 +119,9 @@ def test_a_second_logger_on_the_same_port_fails_at_once(tmp_path, feeder):
     assert time.monotonic() - t0 < 8.0
     assert first.poll() is None, "the second logger failed only once the first had finished"
     assert second.returncode == 2
-    assert "already in use" in one_line_error(second.stderr)
+    line = one_line_error(second.stderr)
+    # it names the program to stop: the first logger, by its pid
+    assert "already in use" in line and f"stid-log {f.port}" in line and f"(pid {first.pid})" in line, line
     assert not (tmp_path / "b.mcap").exists()
     _, err = first.communicate(timeout=30)
     assert first.returncode == 0, err
