@@ -1,6 +1,7 @@
+from functools import cache
 from math import factorial
 
-import numpy as np
+from stid.lazy_numpy import np
 
 from stid.models.effect import Effect, register_effect
 from stid.models.params import Param
@@ -8,6 +9,7 @@ from stid.models.params import Param
 PADE_ORDER = 4
 
 
+@cache  # (built once, on first use: the catalogue is imported by every command, even --help)
 def _pade_unit(order: int = PADE_ORDER):
     """State space of the (order, order) Pade approximant of exp(-x), in x = s * delay."""
     c = np.array([factorial(2 * order - k) * factorial(order) / (factorial(2 * order) * factorial(k)
@@ -25,9 +27,6 @@ def _pade_unit(order: int = PADE_ORDER):
     B[0, 0] = 1.0
     C = (num[1:] - D * den[1:])[None, :]
     return A, B, C, np.array([[D]])
-
-
-_A1, _B1, _C1, _D1 = _pade_unit()
 
 
 @register_effect
@@ -67,4 +66,5 @@ class SensorDelay(Effect):
     def apply(self, sys, p, ctx):
         d = p["delay_s"]
         names = [f"delay_{k}" for k in range(PADE_ORDER)]
-        return sys.series_input("delta", _A1 / d, _B1 / d, _C1, _D1, names, "delta")
+        A, B, C, D = _pade_unit()
+        return sys.series_input("delta", A / d, B / d, C, D, names, "delta")

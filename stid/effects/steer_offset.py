@@ -1,4 +1,4 @@
-import numpy as np
+from stid.lazy_numpy import np
 
 from stid.models.effect import Effect, register_effect
 from stid.models.params import Param

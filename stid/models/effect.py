@@ -51,7 +51,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import ClassVar
 
-import numpy as np
+from stid.lazy_numpy import np
 
 from stid.errors import InputError
 from stid.models.linsys import LinSys

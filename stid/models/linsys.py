@@ -8,8 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-from scipy import linalg
+from stid.lazy_numpy import np
 
 
 def foh(A, B, C, D, dt):
@@ -35,6 +34,8 @@ def foh(A, B, C, D, dt):
         M[:n, :n] = A * dt
         M[:n, n:n + m] = B * dt
         M[n:n + m, n + m:] = np.eye(m)
+        from scipy import linalg  # here: `stid --help` lists the effects without importing scipy
+
         E = linalg.expm(M)
         F, G1, G2 = E[:n, :n], E[:n, n:n + m], E[:n, n + m:]
     return F, G1 - G2 + F @ G2, C, D + C @ G2
