@@ -467,6 +467,43 @@ def test_the_web_server_streams_updates_and_serves_the_page_only_on_loopback():
         srv.close()
 
 
+def test_a_closed_page_leaves_the_viewers_list():
+    """/viewers lists what each open page drew; a page closed (its event stream gone) was
+    listed for ever. It is forgotten at the next update it can no longer receive."""
+    from stid.live.web import LiveServer
+
+    srv = LiveServer(0)
+
+    def viewers():
+        return json.loads(urllib.request.urlopen(srv.url + "viewers", timeout=5).read())
+
+    def ack(view, seq):
+        urllib.request.urlopen(urllib.request.Request(srv.url + "ack", data=json.dumps(
+            {"view": view, "seq": seq}).encode(), headers={"Content-Type": "application/json"}), timeout=5)
+
+    try:
+        srv.publish(_update().to_json())
+        kept = urllib.request.urlopen(srv.url + "events?view=kept", timeout=5)
+        with urllib.request.urlopen(srv.url + "events?view=closed", timeout=5) as ev:
+            _sse(ev)
+            ack("closed", 1)
+        _sse(kept)
+        ack("kept", 1)
+        assert set(viewers()) == {"kept", "closed"}
+        deadline = time.monotonic() + 10
+        seq = 1
+        while "closed" in viewers():  # the closed stream is found at the next write to it
+            assert time.monotonic() < deadline, viewers()
+            seq += 1
+            srv.publish(_update(seq=seq).to_json())
+            _sse(kept)
+            time.sleep(0.05)
+        assert set(viewers()) == {"kept"}
+        kept.close()
+    finally:
+        srv.close()
+
+
 def _sse(stream) -> dict:
     data = None
     while True:

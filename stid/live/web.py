@@ -5,7 +5,8 @@ machine). The page (``page.html``: one file, no external assets) follows the upd
 through server-sent events (``/events``), or by polling ``/state`` where those are not
 available, and redraws without a reload. It tells the server which update it shows
 (``POST /ack``, read back at ``/viewers``): whether a page keeps up can be seen, and a
-test can check what a real browser drew.
+test can check what a real browser drew. A page that follows the events is listed there
+while its stream is open: a closed page is forgotten at the next update or keep-alive.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
 
 PAGE = Path(__file__).with_name("page.html")
 KEEPALIVE_S = 10.0
@@ -26,6 +28,7 @@ class LiveServer:
         self._doc: dict = {"seq": 0, "state": ["waiting for the first update"], "params": [], "history": []}
         self._closing = False
         self.acks: dict = {}  # view id -> the last thing it said it shows
+        self._streams: dict = {}  # view id -> its open event streams (a page may reconnect)
         server = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -41,7 +44,8 @@ class LiveServer:
                 elif path == "/state":
                     self._send(200, "application/json", server._encoded())
                 elif path == "/events":
-                    server._stream(self)
+                    query = parse_qs(urlsplit(self.path).query)
+                    server._stream(self, (query.get("view") or [None])[0])
                 elif path == "/viewers":  # what each open page says it shows
                     with server._cond:
                         body = json.dumps(server.acks).encode()
@@ -89,8 +93,23 @@ class LiveServer:
         with self._cond:
             return json.dumps(self._doc, allow_nan=False).encode()
 
-    def _stream(self, h: BaseHTTPRequestHandler) -> None:
-        """Server-sent events: the current state at once, then every new one."""
+    def _stream(self, h: BaseHTTPRequestHandler, view: str | None = None) -> None:
+        """Server-sent events: the current state at once, then every new one. ``view``: the
+        page's id; once its last stream ends (the page was closed) it leaves ``/viewers``."""
+        if view:
+            with self._cond:
+                self._streams[view] = self._streams.get(view, 0) + 1
+        try:
+            self._send_events(h)
+        finally:
+            if view:
+                with self._cond:
+                    self._streams[view] -= 1
+                    if not self._streams[view]:
+                        del self._streams[view]
+                        self.acks.pop(view, None)
+
+    def _send_events(self, h: BaseHTTPRequestHandler) -> None:
         h.send_response(200)
         h.send_header("Content-Type", "text/event-stream")
         h.send_header("Cache-Control", "no-store")
