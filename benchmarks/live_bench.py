@@ -53,12 +53,19 @@ def update_cost(d: Path, model: str, quick: bool, steps: int = 4) -> dict:
             with open(growing, "ab") as f:  # what the logger's next flushes (and at last its close) write
                 f.write(full[growing.stat().st_size:end])
             grown = time.monotonic()
-            while True:  # the next update that saw the new bytes
-                doc = json.loads(proc.stdout.readline())
-                if doc["seconds"] > (updates[-1]["seconds"] if updates else first["seconds"]):
+            before = updates[-1] if updates else first
+            while True:  # the next update that saw the new bytes (a step of the quick 1 min run is
+                # under a second of data: its whole seconds may not move, the driving seconds do)
+                line = proc.stdout.readline()
+                if not line:
+                    raise RuntimeError(f"stid live ended before the file did: {proc.stderr.read()[-2000:]}")
+                doc = json.loads(line)
+                if (doc["seconds"], doc["driving_s"]) > (before["seconds"], before["driving_s"]):
                     break
             walls.append(time.monotonic() - grown)
             updates.append(doc)
+            if doc.get("finished"):  # the view saw the closing summary (it may come before the last bytes) and ended
+                break
     finally:
         proc.kill()
         proc.wait()
