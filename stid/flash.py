@@ -310,26 +310,56 @@ def plan(board: str, port: str | None, build_dir: Path, rate_hz: int, batch: int
 
 def plan_script(board: str, port: str | None, build_dir: Path, rate_hz: int, batch: int, wheels: int,
                 budget: str) -> str:
-    """The plan as a shell script that flashes the board when run as printed; what stid
-    checks in the board's answers is said in the comments beside each step."""
+    """The plan as a shell script that flashes the board when run as printed, and checks the
+    board's answers as stid flash does: another board, an old MicroPython, too little heap or
+    flash, a copy that differs from the build or firmware that does not import there stop it
+    with the same advice, before main.py is copied."""
     fw, proto = local_versions()
     ring = ring_bytes(rate_hz, batch, wheels) + FIRMWARE_HEAP_BYTES
-    notes = {
-        "probe": (f"stid checks: STIDVER .. {PLATFORM[board]} (--board {board}), MicroPython >= "
-                  f"{'.'.join(map(str, MIN_MICROPYTHON))}; STIDMEM: free heap >= {ring} B "
-                  "(ring + firmware), free flash >= the files"),
-        "prepare": "main.py goes first: until it is copied back the board boots to the REPL",
-        "hash": "stid checks: each STIDSHA equals sha256sum of the file in the build folder",
-        "readback": "stid checks: STIDFW %d %d %d %d (firmware, protocol)" % (*fw, proto),
-        "hash_main": "stid checks: STIDSHA main.py equals sha256sum of it",
-        "escape": "a running app reboots into safe mode",
-    }
-    lines = [f"# stid flash: {board} ({ARCH[board]}), {rate_hz} Hz, {batch} samples per frame, "
+    build = shlex.quote(str(build_dir))
+    files = [f"{m}.mpy" for m in COMPILED_MODULES] + ["config.py"]
+    platform, (major, minor) = PLATFORM[board], MIN_MICROPYTHON
+    want_fw = "STIDFW %d %d %d %d" % (*fw, proto)
+    lines = [f"#!/bin/sh\n# stid flash: {board} ({ARCH[board]}), {rate_hz} Hz, {batch} samples per frame, "
              f"{wheels} hall sensor{'s' if wheels > 1 else ''}",
-             f"# link: {budget}", "set -e", shlex.join(["mkdir", "-p", str(build_dir)])]
+             f"# link: {budget}", "set -e",
+             'fail() { echo "stid flash: $*" >&2; exit 1; }',
+             "# what the board printed, without its carriage returns",
+             'ask() { answer=$("$@"); answer=$(printf \'%s\\n\' "$answer" | tr -d \'\\r\'); printf \'%s\\n\' "$answer"; }',
+             'sha() { if command -v sha256sum >/dev/null; then sha256sum "$1"; else shasum -a 256 "$1"; fi | cut -d" " -f1; }',
+             shlex.join(["mkdir", "-p", str(build_dir)])]
     if not port:
         lines.append("# no --port: no escape is sent; if the app is running, mpremote cannot stop it "
                      "(firmware/README.md, 'Recovery')")
+    checks = {
+        "probe": [
+            f"printf '%s\\n' \"$answer\" | grep -Eq '^STIDVER [0-9]+ [0-9]+ [0-9]+ {platform}$' || "
+            f"fail \"the board's answer has no 'STIDVER ... {platform}' line: it is not a {board} (sys.platform "
+            f"{platform}), or it did not answer: give the right --board, or see firmware/README.md, 'Recovery'\"",
+            f"printf '%s\\n' \"$answer\" | awk '/^STIDVER/ {{ok = $2 > {major} || ($2 == {major} && $3 >= {minor})}} "
+            f"END {{exit !ok}}' || fail \"the compiled firmware (.mpy 6.3) needs MicroPython {major}.{minor} or "
+            f"newer: update MicroPython on the board\"",
+            f"printf '%s\\n' \"$answer\" | awk '/^STIDMEM/ {{ok = $2 >= {ring}}} END {{exit !ok}}' || "
+            f"fail \"the board's free heap is below the {ring} B the ring of {rate_hz} Hz and the firmware need: "
+            f"flash with a lower --rate\"",
+            f"need=$(( $(cat {' '.join(f'{build}/{f}' for f in files)} {shlex.quote(str(FIRMWARE_DIR / 'main.py'))} "
+            f"| wc -c) + {FS_MARGIN_BYTES} ))",
+            "printf '%s\\n' \"$answer\" | awk -v need=\"$need\" '/^STIDMEM/ {ok = $3 < 0 || $3 >= need} "
+            "END {exit !ok}' || fail \"the board's filesystem has less room than the firmware's $need B: remove "
+            "files you do not need ('mpremote fs ls', 'mpremote fs rm FILE'). Nothing was written.\""],
+        "hash": [f"for f in {' '.join(files)}; do",
+                 f"  printf '%s\\n' \"$answer\" | grep -qx \"STIDSHA $f $(sha {build}/$f)\" || "
+                 "fail \"the copy on the board differs from the build for $f: flash again\"",
+                 "done"],
+        "readback": [f"printf '%s\\n' \"$answer\" | grep -qx '{want_fw}' || fail \"the firmware copied to the board "
+                     f"does not import there, or is not this build's ({want_fw}); main.py is not on the board yet: "
+                     "flash again\""],
+        "hash_main": [f"printf '%s\\n' \"$answer\" | grep -qx \"STIDSHA main.py "
+                      f"$(sha {shlex.quote(str(FIRMWARE_DIR / 'main.py'))})\" || "
+                      "fail \"the copy of main.py on the board differs from the firmware's: flash again\""],
+    }
+    notes = {"prepare": "main.py goes first: until it is copied back the board boots to the REPL",
+             "escape": "a running app reboots into safe mode"}
     for step in plan(board, port, build_dir, rate_hz, batch, wheels):
         if step.kind == "config":
             lines.append(f"cat > {shlex.quote(str(build_dir / 'config.py'))} <<'STID_CONFIG'")
@@ -338,7 +368,11 @@ def plan_script(board: str, port: str | None, build_dir: Path, rate_hz: int, bat
             continue
         if step.kind in notes:
             lines.append(f"# {notes[step.kind]}")
-        lines.append(shlex.join(step.cmd))
+        if step.kind in checks:
+            lines.append("ask " + shlex.join(step.cmd))
+            lines.extend(checks[step.kind])
+        else:
+            lines.append(shlex.join(step.cmd))
     return "\n".join(lines) + "\n"
 
 

@@ -266,10 +266,44 @@ def test_dry_run_prints_a_plan_that_flashes_when_run_as_printed(board, tmp_path,
     script = capsys.readouterr().out
     assert not build.exists() and board.files() == [] and board.calls() == []  # nothing done
     (tmp_path / "plan.sh").write_text(script)
-    proc = subprocess.run(["bash", str(tmp_path / "plan.sh")], capture_output=True, text=True)
+    proc = subprocess.run(["sh", str(tmp_path / "plan.sh")], capture_output=True, text=True)  # (POSIX sh: dash here)
     assert proc.returncode == 0, proc.stderr
     assert board.files() == ALL_FILES and "WHEELS = 4" in (board.path / "config.py").read_text()
     fw, proto = fl.local_versions()
     assert "STIDFW %d %d %d %d" % (*fw, proto) in proc.stdout  # the read-back ran
     for f in (f for f in ALL_FILES if f.endswith(".mpy")):  # the board holds what the printed commands built
         assert (board.path / f).read_bytes() == (build / f).read_bytes()
+
+
+@pytest.mark.parametrize("state, said", [
+    (dict(ESP32), "not a pico"),  # another board
+    (dict(PICO, version=[1, 22, 2]), "MicroPython 1.23 or newer"),
+    (dict(PICO, heap=80_000), "lower --rate"),  # gc.mem_free() measured on the unix port's 80 kB heap
+    (dict(PICO, answer="Traceback (most recent call last):\r\n"), "did not answer"),
+])
+def test_the_printed_plan_checks_the_boards_answers_as_stid_flash_does(board, tmp_path, capsys, state, said):
+    """The dry run's script stops where stid flash would, with the same advice, and nothing
+    is written to the board (the checks of the probe come before main.py is removed)."""
+    build = tmp_path / "build"
+    assert stid_main(["flash", "--board", "pico", "--dry-run", "--build-dir", str(build)]) == 0
+    (tmp_path / "plan.sh").write_text(capsys.readouterr().out)
+    (board.path / "main.py").write_text("# the firmware flashed before\n")
+    board.set(**state)
+    proc = subprocess.run(["sh", str(tmp_path / "plan.sh")], capture_output=True, text=True)
+    assert proc.returncode != 0 and said in proc.stderr, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("stid flash: ")
+    assert board.files() == ["main.py"] and [c.split()[0] for c in board.calls()] == ["exec"]
+
+
+def test_the_printed_plan_stops_on_a_copy_that_differs_from_the_build(board, tmp_path, capsys):
+    build = tmp_path / "build"
+    assert stid_main(["flash", "--board", "pico", "--dry-run", "--build-dir", str(build)]) == 0
+    script = capsys.readouterr().out
+    # the board's filesystem changes a byte of what it was sent (a damaged copy): the plan's
+    # copy step is followed by one that spoils ring.mpy, as a flaky flash would
+    copy = next(line for line in script.splitlines() if " fs cp " in line and "ring.mpy" in line)
+    spoil = f"printf 'x' | dd of={board.path / 'ring.mpy'} bs=1 seek=20 conv=notrunc 2>/dev/null"
+    (tmp_path / "plan.sh").write_text(script.replace(copy, copy + "\n" + spoil))
+    proc = subprocess.run(["sh", str(tmp_path / "plan.sh")], capture_output=True, text=True)
+    assert proc.returncode != 0 and "differs from the build for ring.mpy" in proc.stderr, proc.stderr
+    assert "main.py" not in board.files()  # the board boots to the REPL: it can be flashed again
