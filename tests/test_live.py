@@ -199,6 +199,46 @@ def test_no_done_for_a_model_the_diagnosis_says_lacks_an_effect(car, tmp_path):
     assert "actuator_lag" in up.lacking[0]  # first: more driving with this model does not help
 
 
+def test_a_model_the_diagnosis_rejects_gets_no_driving_plan(car, tmp_path):
+    """The plan's "drive N min more for Iz" is worked out as if the watched model were right;
+    on a model the diagnosis rejects it swung from update to update (a trial: bicycle on a
+    lagged car, Cf +-10% then +-16% with more data). Once the diagnosis names an effect, or
+    finds an error no effect explains, those lines go; a stand-still, lacking whatever the
+    model, stays."""
+    from stid.live import lacks
+    from stid.live.estimator import Estimator
+    from stid.live.follow import with_named_effect, with_unexplained_error
+    from stid.live.source import Source
+
+    run = tmp_path / "run.csv"
+    bicycle_csv(run, 30.0, seed=5)
+    est = Estimator(_vehicle(car), "bicycle", {"Iz": 0.01}, "test")
+    up = est.update(Source(run, _vehicle(car)).poll(), run.name)
+    assert up.lacking and up.done is None  # a plan for a target out of reach
+    up.lacking = [lacks.STAND_STILL] + up.lacking
+    with_named_effect(up, "bicycle", "actuator_lag")
+    assert len(up.lacking) == 2 and "--model bicycle+actuator_lag" in up.lacking[0]
+    assert up.lacking[1] == lacks.STAND_STILL
+    up = est.update(Source(run, _vehicle(car)).poll(), run.name)
+    with_unexplained_error(up, "bicycle")
+    assert up.done is None and len(up.lacking) == 1 and "no catalogue effect explains" in up.lacking[0]
+
+
+def test_the_diagnosis_verdict_says_an_error_no_effect_explains():
+    """``named`` empty is "nothing missing" only when the model is at its noise floor; short
+    of it (``unexplained.significant``) the catalogue lacks what the car has."""
+    from stid.live.diagnosis import unexplained, verdict
+
+    doc = {"model": "bicycle", "named": [], "candidates": [], "fit": {"ay": 80.2, "r": 91.0},
+           "noise_floor": {"ay": 99.1, "r": 98.0},
+           "unexplained": {"significant": True, "model": "bicycle", "gap": {"ay": 18.9, "r": 7.0}}}
+    text = verdict(json.dumps(doc), 40.0)
+    assert "misses something no effect of the catalogue explains" in text and "ay 80.2% where the noise allows 99.1%" in text
+    assert "nothing missing" not in text and unexplained(json.dumps(doc))
+    doc["unexplained"]["significant"] = False
+    assert "nothing missing from bicycle" in verdict(json.dumps(doc), 40.0) and not unexplained(json.dumps(doc))
+
+
 def test_no_done_before_the_diagnosis_has_answered(car, tmp_path):
     """A trial run: 12 s of a car with a servo lag and an offset accelerometer, watched with
     bicycle+actuator_lag and loose targets, printed done with every interval off the truth while

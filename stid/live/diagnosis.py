@@ -30,6 +30,7 @@ class BackgroundDiagnosis:
         self.running_at = 0.0
         self.text: str | None = None  # the verdict shown
         self.effect: str | None = None  # the effect it names (None: nothing named, or not yet)
+        self.unexplained = False  # the model is short of the noise floor, and no catalogue effect explains it
         self.runs = 0
 
     def poll(self, driving_s: float, finished: bool = False) -> str | None:
@@ -39,7 +40,8 @@ class BackgroundDiagnosis:
         if self.proc is not None and self.proc.poll() is not None:
             out, _ = self.proc.communicate()
             self.text = verdict(out, self.running_at) or self.text
-            self.effect = named_effect(out) if self.text else self.effect
+            if self.text:
+                self.effect, self.unexplained = named_effect(out), unexplained(out)
             self.tried_at = self.running_at
             self.proc = None
         # (none started on a finished file: the view ends after its last update; `stid diagnose`
@@ -93,7 +95,13 @@ def verdict(output: str, driving_s: float) -> str | None:
     effects = named(doc)
     at = f"(stid diagnose, {driving_s:.0f} s of driving)"
     if not effects:
-        return f"diagnosis: nothing missing from {doc.get('model', 'the model')} that these data show {at}"
+        model = doc.get("model", "the model")
+        if _unexplained(doc):
+            gaps = ", ".join(f"{o} {doc['fit'][o]:.1f}% where the noise allows {doc['noise_floor'][o]:.1f}%"
+                             for o in ("ay", "r") if o in doc.get("fit", {}) and o in doc.get("noise_floor", {}))
+            return (f"diagnosis: {model} misses something no effect of the catalogue explains"
+                    f"{' (' + gaps + ')' if gaps else ''}; stid diagnose on the file says what is left {at}")
+        return f"diagnosis: nothing missing from {model} that these data show {at}"
     shown = {}
     for c in doc["candidates"]:
         if c.get("effect") in effects:
@@ -112,6 +120,21 @@ def named_effect(output: str) -> str | None:
         return None
     effects = named(doc) if isinstance(doc, dict) else []
     return "+".join(effects) or None
+
+
+def unexplained(output: str) -> bool:
+    """The diagnosis names nothing, yet the model is short of its noise floor by more than
+    chance: an effect the catalogue lacks (or one of its effects it could not tell)."""
+    try:
+        doc = json.loads(output)
+    except (json.JSONDecodeError, TypeError):
+        return False
+    return isinstance(doc, dict) and not named(doc) and _unexplained(doc)
+
+
+def _unexplained(doc: dict) -> bool:
+    left = doc.get("unexplained")
+    return isinstance(left, dict) and bool(left.get("significant"))
 
 
 def _quantity(name: str, value: float, unit: str) -> str:

@@ -21,6 +21,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from stid.live import lacks
 from stid.live.diagnosis import MIN_DRIVING_S, BackgroundDiagnosis
 from stid.live.estimator import Estimator, done_line
 from stid.live.source import Source
@@ -69,6 +70,8 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                 up.diagnosis = diag.poll(up.driving_s, snap.finished)
                 if diag.effect and up.params:
                     with_named_effect(up, model, diag.effect)
+                elif diag.unexplained and up.params:
+                    with_unexplained_error(up, model)
                 elif up.done and diag.text is None:
                     before_the_diagnosis(up)
             said = (up.seq, tuple(up.state), up.diagnosis, tuple(up.lacking), up.done)
@@ -115,7 +118,15 @@ def with_named_effect(up, model: str, effect: str) -> None:
     were right, so a reached target is not the answer: no "done", and what to add instead."""
     _instead_of_done(up, f"a model with what the diagnosis names: --model {model}+{effect} (the fit then misses "
                          f"less; without {effect} a reached target is not the answer: the intervals hold only if "
-                         "the model were right)")
+                         "the model were right)", model_rejected=True)
+
+
+def with_unexplained_error(up, model: str) -> None:
+    """The diagnosis finds {model} short of its noise floor and names nothing: as with a named
+    effect, more driving does not make its intervals the answer."""
+    _instead_of_done(up, f"what {model} misses (the diagnosis finds an error no catalogue effect explains: "
+                         "stid diagnose on the file, then --model with it or an effect file of your own); "
+                         "until then a reached target is not the answer", model_rejected=True)
 
 
 def before_the_diagnosis(up) -> None:
@@ -126,10 +137,14 @@ def before_the_diagnosis(up) -> None:
                          "reached, but only a model that lacks nothing the data show makes them the answer")
 
 
-def _instead_of_done(up, line: str) -> None:
-    """No "done"; ``line`` first of what is lacking (more driving with this model does not help),
-    once however often the view updates."""
+def _instead_of_done(up, line: str, model_rejected: bool = False) -> None:
+    """No "done"; ``line`` first of what is lacking, once however often the view updates.
+    ``model_rejected``: the data reject the watched model, so the plan's "drive N min more for
+    Iz" lines, worked out as if it were right, go (they swung from update to update on the
+    model's error); what the data lack whatever the model (a stand-still) stays."""
     up.done = None
+    if model_rejected:
+        up.lacking = [x for x in up.lacking if x in lacks.FACTS_OF_THE_DATA]
     if line not in up.lacking:
         up.lacking = [line] + up.lacking
 

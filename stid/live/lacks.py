@@ -31,6 +31,11 @@ LINEAR_AY = 0.4 * 9.81  # m/s^2: beyond about 0.4 g the tyres leave their linear
 STILL_S = 2.0
 NOISE_S = 60.0  # seconds of residual the noise spectrum is estimated from (the latest)
 SPEED_BIN = 0.5  # m/s: the driving so far, weighed per speed
+STAND_STILL = (f"stand still {STILL_S:g} s for the gyro zero (no stand-still of {STILL_S:g} s in the data yet: "
+               "the gyro's bias is not removed)")
+NOTHING_TO_FIT = "drive: random steer (1-4 deg) at a steady speed; nothing to fit yet"
+# what the data lack whatever the model (the rest is planned for the model watched)
+FACTS_OF_THE_DATA = (STAND_STILL, NOTHING_TO_FIT)
 
 
 def lacking(runs, res, model, params: list) -> list[str]:
@@ -38,10 +43,9 @@ def lacking(runs, res, model, params: list) -> list[str]:
     when there is none); ``params``: its ParamState list (with the targets)."""
     out = []
     if any(r.meta.get("gyro_bias") is None and r.meta.get("format") == "mcap" for r in runs):
-        out.append(f"stand still {STILL_S:g} s for the gyro zero (no stand-still of {STILL_S:g} s in the data yet: "
-                   "the gyro's bias is not removed)")
+        out.append(STAND_STILL)
     if res is None:
-        out.append("drive: random steer (1-4 deg) at a steady speed; nothing to fit yet")
+        out.append(NOTHING_TO_FIT)
         return out
     short = [p for p in params if p.target is not None and not p.met]
     if not short:
