@@ -83,6 +83,14 @@ class Pty:
                 os.close(fd)
             except OSError:
                 pass
+        # unplugged, the link goes, as udev removes /dev/serial/by-id/...: left behind, it names
+        # a pty number the system gives the next program that asks, and a logger waiting for
+        # the car would open that program's port
+        try:
+            if self.link and os.readlink(self.link) == self.name:
+                os.unlink(self.link)
+        except OSError:
+            pass
 
 
 def serve(cfg: SimConfig, opts: ServeOptions, out=None) -> int:

@@ -67,6 +67,8 @@ class Feeder:
         self.pause.set()
         for fd in (self.master, self.slave):
             os.close(fd)
+        if self.link:
+            os.unlink(self.link)  # as udev removes a by-id link on unplug
         time.sleep(0.5)
         self._open()
         self.stream = stream

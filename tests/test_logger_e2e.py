@@ -174,6 +174,22 @@ def test_unplug_and_replug_resumes_in_the_same_file(tmp_path):
     assert "went away" in err and "is complete up to here" in err and "is back after" in err, err
 
 
+def test_an_unplugged_car_takes_its_link_away_as_udev_does(tmp_path):
+    """A /dev/serial/by-id link goes when the device goes. The simulator left its link on the
+    closed pty, whose number the system then gave another program's pty: in the suite a
+    logger waiting for its car opened another test's port ("already in use" there)."""
+    link = tmp_path / "by-id-car"
+    sim = Sim("--duration", 4, "--still", 0.5, "--seed", 8, "--disconnect-at", 1.0, "--reconnect-after", 1.5,
+              "--link", link)
+    seen = []
+    while sim.proc.poll() is None:
+        seen.append(os.path.lexists(link))
+        time.sleep(0.05)
+    sim.wait()
+    changes = [seen[0]] + [b for a, b in zip(seen, seen[1:]) if a != b]
+    assert changes == [True, False, True, False], changes  # there; unplugged: gone; back; the end: gone
+
+
 def test_a_car_restart_is_said_live_and_in_the_summary(tmp_path):
     """A car whose sampler stops is restarted by its 2 s watchdog: the summary said '0 samples
     missing ... 0 unplug gaps' with a 2 s hole in the run and nothing live."""
