@@ -192,7 +192,8 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of):
     ended (``solve(sigma, known, colour)``), until the answer is stationary at its own weights
     by the rule that ends a solve (convergence.STEP_SE_STOP). Each round raises the likelihood
     (the parameters' best for the levels, then the levels' best for the parameters), so the
-    rounds converge; a fit refined once only (as stid fit was) can end standard errors away
+    rounds converge (the first round's levels are foreseen, _levels_ahead: most of the way at
+    once); a fit refined once only (as stid fit was) can end standard errors away
     when the model misses an effect and the levels move far from the first ones.
 
     ``res``: a solve weighted by ``sigma``; ``colour_of(r)``: the integrated autocorrelation
@@ -204,18 +205,51 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of):
     while True:
         nfev += res.nfev
         r = res.fun.reshape(-1, 2) * sigma  # unweighted
+        Ju = res.jac.reshape(-1, 2, res.jac.shape[1]) * sigma[None, :, None]
         own = _levels(r)
-        rescale = sigma / own
-        f = (r / own).ravel()
-        J = (res.jac.reshape(-1, 2, res.jac.shape[1]) * rescale[None, :, None]).reshape(res.jac.shape)
+        f, J = (r / own).ravel(), (Ju / own[None, :, None]).reshape(res.jac.shape)
         colour = colour_of(r)
         if rounds == MAX_WEIGHT_ROUNDS or convergence.remaining_step(J, f, res.x, lo, hi, colour) < convergence.STEP_SE_STOP:
             break
-        sigma = own
-        res = solve(sigma, (res.x, f, J), colour)
+        if rounds == 0:  # foreseen once; then each round's own levels, which always converge
+            inside = [i for i, n in enumerate(space.free) if n not in space.at_bound(res.x)]
+            sigma = _levels_ahead(r, Ju[:, :, inside], own)
+        else:
+            sigma = own
+        res = solve(sigma, (res.x, (r / sigma).ravel(), (Ju / sigma[None, :, None]).reshape(res.jac.shape)), colour)
         rounds += 1
     res.fun, res.jac, res.nfev = f, J, nfev
     return res, own
+
+
+def _levels_ahead(r: np.ndarray, Ju: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """The residual levels at the likelihood's optimum as the Jacobian foresees them: the
+    re-weighting rounds run to their end on the linearised residuals r + Ju s (p x p sums, no
+    simulation), so a round's solve is weighted by where the weights are going, not by where
+    they are (re-weighted by its own levels only, a solve moves the weights a fraction of the way
+    each round: the slow part of the loop). ``own`` when the linearisation gives nothing usable.
+    r: (n, 2) unweighted residuals; Ju: (n, 2, p) their Jacobian in the parameters free to move
+    (one at a bound would be foreseen beyond it)."""
+    rc = r - r.mean(axis=0)  # the levels are standard deviations: centred sums
+    Jc = Ju - Ju.mean(axis=0)
+    H = np.einsum("nop,noq->opq", Jc, Jc)
+    g = np.einsum("nop,no->op", Jc, rc)
+    c = np.einsum("no,no->o", rc, rc)
+    ss = c.copy()
+    for _ in range(50):
+        w = 1.0 / ss
+        try:
+            step = -np.linalg.solve(np.einsum("o,opq->pq", w, H), w @ g)
+        except np.linalg.LinAlgError:
+            return own
+        new = c + 2.0 * g @ step + np.einsum("p,opq,q->o", step, H, step)
+        if not (np.all(np.isfinite(new)) and np.all(new > 0)):
+            return own
+        done = np.allclose(new, ss, rtol=1e-6)
+        ss = new
+        if done:
+            break
+    return np.sqrt(ss / len(r))
 
 
 AR_ORDER = 12
