@@ -179,9 +179,10 @@ MAX_WEIGHT_ROUNDS = 10
 
 
 def _levels(r: np.ndarray) -> np.ndarray:
-    """Each output's residual level (standard deviation) in unweighted residuals r (n, 2): the
-    weights that maximise the Gaussian likelihood at that point."""
-    sigma = np.std(r, axis=0)
+    """Each output's residual level (root mean square) in unweighted residuals r (n, 2): the
+    weights that maximise the likelihood of zero-mean Gaussian errors at that point (what the
+    cost, sum (r / sigma)^2, measures: an offset of the residuals counts as error)."""
+    sigma = np.sqrt(np.mean(r * r, axis=0))
     return np.where(sigma > 0, sigma, 1.0)
 
 
@@ -230,11 +231,9 @@ def _levels_ahead(r: np.ndarray, Ju: np.ndarray, own: np.ndarray) -> np.ndarray:
     each round: the slow part of the loop). ``own`` when the linearisation gives nothing usable.
     r: (n, 2) unweighted residuals; Ju: (n, 2, p) their Jacobian in the parameters free to move
     (one at a bound would be foreseen beyond it)."""
-    rc = r - r.mean(axis=0)  # the levels are standard deviations: centred sums
-    Jc = Ju - Ju.mean(axis=0)
-    H = np.einsum("nop,noq->opq", Jc, Jc)
-    g = np.einsum("nop,no->op", Jc, rc)
-    c = np.einsum("no,no->o", rc, rc)
+    H = np.einsum("nop,noq->opq", Ju, Ju)
+    g = np.einsum("nop,no->op", Ju, r)
+    c = np.einsum("no,no->o", r, r)
     ss = c.copy()
     for _ in range(50):
         w = 1.0 / ss
