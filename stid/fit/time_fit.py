@@ -88,7 +88,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         # linearly on a model that misses an effect
         res = least_squares(lambda p, s=sigma: residual(p, s), space, starts, **({"ftol": 1e-4} if reweight else {}))
     if reweight or settle:
-        res, sigma = _at_maximum_likelihood(
+        res, sigma, colour = _at_maximum_likelihood(
             res, sigma, space,
             lambda s, known, colour: least_squares(lambda p: residual(p, s), space, [space.to_p(known[0])],
                                                    unit_noise=True, known=known, colour=colour),
@@ -122,7 +122,9 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     for st, k in zip(stretches, keeps):
         preds.append(Prediction(st.name, st.t, st.steer, st.y, simulate(model, p_hat, st), st.vx, k))
         settled = settled and model.converged  # an iterated tyre force settled on every stretch
-    verdict = convergence.judge(res, space, _colour(res.fun.reshape(-1, 2), keeps, stretches[0].dt), settled)
+    if whiten or not (reweight or settle):  # (else the rounds measured it where they ended)
+        colour = _colour(res.fun.reshape(-1, 2), keeps, stretches[0].dt)
+    verdict = convergence.judge(res, space, colour, settled)
     interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
     widened, jk_dof, allowance = [], None, None
     if intervals == "model-error" and verdict.converged:
@@ -200,7 +202,7 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of):
     ``res``: a solve weighted by ``sigma``; ``colour_of(r)``: the integrated autocorrelation
     time of unweighted residuals r (n, 2). Returns the last solve, its residuals and Jacobian
     re-weighted by its own levels (what the verdict and the intervals are taken from; its
-    evaluations counted over every round), and those levels."""
+    evaluations counted over every round), those levels, and the residuals' colour there."""
     lo, hi = space.bounds_x()
     nfev, rounds = 0, 0
     while True:
@@ -220,7 +222,7 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of):
         res = solve(sigma, (res.x, (r / sigma).ravel(), (Ju / sigma[None, :, None]).reshape(res.jac.shape)), colour)
         rounds += 1
     res.fun, res.jac, res.nfev = f, J, nfev
-    return res, own
+    return res, own, colour
 
 
 def _levels_ahead(r: np.ndarray, Ju: np.ndarray, own: np.ndarray) -> np.ndarray:
