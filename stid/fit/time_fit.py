@@ -4,8 +4,9 @@ the model, and the simulated ay and r are matched to the measured ones.
 The start of each stretch (``discard_s``) is left out of the cost, so the
 unknown initial state does not bias the parameters; the model starts in the
 steady state of the first steer sample. Outputs are weighted by the inverse of
-their residual standard deviation (estimated, then refined once), which is the
-maximum-likelihood weighting for Gaussian errors of unknown size per output.
+their residual level at the answer (refined in rounds until the answer is stationary at
+its own levels), which is the maximum-likelihood weighting for Gaussian errors of unknown
+size per output.
 """
 
 from __future__ import annotations
