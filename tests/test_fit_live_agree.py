@@ -150,7 +150,8 @@ def test_stid_fit_ends_at_the_likelihoods_optimum(lagging):
                                  [np.zeros(3), 0.02 * np.eye(3)])})
     assert best.fun <= neg_loglik(start)
     for n, v in zip(names, np.exp(best.x)):
-        assert abs(v - ref["params"][n]["value"]) <= SAME_OPTIMUM_SE * ref["params"][n]["stderr"], (n, v, ref["params"][n])
+        r = ref["params"][n]
+        assert abs(v - r["value"]) <= SAME_OPTIMUM_SE * r["stderr"], (n, v, r)
 
 
 @pytest.mark.slow

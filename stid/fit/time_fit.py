@@ -194,11 +194,12 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of):
     output by the residual level the optimum leaves. So the weights are refined: each round
     weights the residuals by the levels the last solve left and solves again from where it
     ended (``solve(sigma, known, colour)``), until the answer is stationary at its own weights
-    by the rule that ends a solve (convergence.STEP_SE_STOP). Each round raises the likelihood
-    (the parameters' best for the levels, then the levels' best for the parameters), so the
-    rounds converge (the first round's levels are foreseen, _levels_ahead: most of the way at
-    once); a fit refined once only (as stid fit was) can end standard errors away
-    when the model misses an effect and the levels move far from the first ones.
+    by the rule that ends a solve (convergence.STEP_SE_STOP). A round weighted by the levels
+    the last one left raises the likelihood (the parameters' best for the levels, then the
+    levels' best for the parameters), so those rounds converge; the first round's levels are
+    foreseen instead (_levels_ahead: most of the way at once). A fit refined once only (as
+    stid fit was) can end standard errors away when the model misses an effect and the levels
+    move far from the first ones.
 
     ``res``: a solve weighted by ``sigma``; ``colour_of(r)``: the integrated autocorrelation
     time of unweighted residuals r (n, 2). Returns the last solve, its residuals and Jacobian
@@ -213,13 +214,15 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of):
         own = _levels(r)
         f, J = (r / own).ravel(), (Ju / own[None, :, None]).reshape(res.jac.shape)
         colour = colour_of(r)
-        if rounds == MAX_WEIGHT_ROUNDS or convergence.remaining_step(J, f, res.x, lo, hi, colour) < convergence.STEP_SE_STOP:
+        step = convergence.remaining_step(J, f, res.x, lo, hi, colour)
+        if rounds == MAX_WEIGHT_ROUNDS or step < convergence.STEP_SE_STOP:
             break
+        sigma = own
         if rounds == 0:  # foreseen once; then each round's own levels, which always converge
-            inside = [i for i, n in enumerate(space.free) if n not in space.at_bound(res.x)]
-            sigma = _levels_ahead(r, Ju[:, :, inside], own)
-        else:
-            sigma = own
+            held = space.at_bound(res.x)
+            inside = [i for i, n in enumerate(space.free) if n not in held]
+            if inside:
+                sigma = _levels_ahead(r, Ju[:, :, inside], own)
         res = solve(sigma, (res.x, (r / sigma).ravel(), (Ju / sigma[None, :, None]).reshape(res.jac.shape)), colour)
         rounds += 1
     res.fun, res.jac, res.nfev = f, J, nfev
