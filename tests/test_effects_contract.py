@@ -160,6 +160,12 @@ def _fit_line(out: str) -> dict:
     return {"ay": float(m.group(1)), "r": float(m.group(2))}
 
 
+def _floor_line(out: str) -> dict:
+    m = re.search(r"noise floor [^:]*: ay ([0-9.]+)% \+- [0-9.]+\s+r ([0-9.]+)%", out)
+    assert m, out
+    return {"ay": float(m.group(1)), "r": float(m.group(2))}
+
+
 def test_the_tutorial_runs_end_to_end_and_the_error_falls(tmp_path):
     """docs/writing_an_effect.md as a user runs it: its commands, one process each, in a
     fresh directory, with the tools on PATH; the effect hidden with stid-sim --effect-file
@@ -187,7 +193,12 @@ def test_the_tutorial_runs_end_to_end_and_the_error_falls(tmp_path):
     assert "accel_scale" not in diag_without and "an effect the catalogue lacks" in diag_without
     assert "=> add accel_scale first" in diag_with
     before, after = _fit_line(fit_plain), _fit_line(fit_mine)
-    assert after["ay"] > before["ay"] + 1.0 and after["r"] > before["r"] + 0.5, (before, after)
+    floor = _floor_line(fit_mine)
+    # the error falls in ay, which the hidden scale corrupts; the gyro is clean, and the plain
+    # bicycle (each output weighted by its own residual level) already fits r to its floor
+    assert after["ay"] > before["ay"] + 1.0 and after["r"] >= before["r"], (before, after)
+    for o in ("ay", "r"):  # with the effect, what a correct model reaches (to the printed 0.1 point)
+        assert after[o] >= floor[o] - 0.1, (o, after, floor)
     m = re.search(r"accel_scale_err\s+([-0-9.]+)", fit_mine)
     assert m and float(m.group(1)) == pytest.approx(-0.06, abs=0.01), fit_mine
     # the numbers the page says these commands print are the ones they print

@@ -332,12 +332,20 @@ def test_the_fit_says_whether_it_converged(fits):
 
 def test_a_model_with_more_never_fits_worse_without_saying_it_failed(fits):
     """bicycle+tyre_saturation contains bicycle (mu large): on ds1 its fit stopped at its start
-    (ay 3.9% against the bicycle's 33.0%, mu 1 with a zero-width interval)."""
+    (ay 3.9% against the bicycle's 33.0%, mu 1 with a zero-width interval).
+
+    Worse is the likelihood both maximise (stid.fit.nested.worse_than). Each output is weighted
+    by its own residual level, so the model with more may give up a point of one output for
+    more of the other (ds1: ay 32.6% -> 31.6%, r 72.6% -> 73.4%, the likelihood 13.7 higher);
+    an output worse by more than half a point is allowed only in such a trade."""
+    from stid.fit import nested
+
     base, more = fits["bicycle"], fits["bicycle+tyre_saturation"]
     worse = [o for o in ("ay", "r") if more.fit[o] < base.fit[o] - 0.5]
-    if worse:
+    traded = worse and more.loglik > base.loglik and any(more.fit[o] > base.fit[o] for o in ("ay", "r"))
+    if nested.worse_than(more, base) or (worse and not traded):
         doc = more.to_json()
-        assert doc.get("converged") is False, (worse, more.fit, base.fit)
+        assert doc.get("converged") is False, (worse, more.fit, base.fit, more.loglik, base.loglik)
         assert re.search(r"did not converge|failed", more.table()), more.table()
 
 

@@ -28,9 +28,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-# The step still to go, in standard errors of the direction it points in, beyond which the
-# solve has not reached the optimum. The stopping rule (stid.fit.solver.SETTLED_COST) stops at
-# about a tenth of one; half of one moves a 95% interval's centre by a quarter of its half-width.
+# The step still to go, in standard errors of the direction it points in: a solve stops below
+# STEP_SE_STOP (stid.fit.solver ends scipy's solve there, closer than that moves no reported
+# figure), and a fit that ends beyond STEP_SE_MAX has not reached the optimum (half of one moves a
+# 95% interval's centre by a quarter of its half-width). One measure for both, so a solve that
+# stopped by its rule is always called converged, and the margin between them is what the
+# quadratic model may be off by where the model misses an effect (its residuals are large).
+STEP_SE_STOP = 0.1
 STEP_SE_MAX = 0.5
 # Singular values of the column-scaled Jacobian below this share of the largest: directions the
 # data do not see. scipy's difference Jacobian is good to ~1e-8 of a column; the covariance's
@@ -57,10 +61,12 @@ class Verdict:
 
 def solver_words(res) -> str:
     """scipy's own message, its status number and how many evaluations it took (status -2 is
-    stid's own stopping rule, stid.fit.solver.settled, ending the solve through scipy's callback)."""
+    stid's own stopping rule, stid.fit.solver.stop_when_stationary, ending the solve through scipy's
+    callback)."""
     words = res.message.rstrip(".")
     if res.status == -2:
-        words = "stopped by stid's rule: the cost still to lose is below a tenth of a standard error"
+        words = (f"stopped by stid's rule: the Gauss-Newton step still to go is below {STEP_SE_STOP:g} of a "
+                 "standard error")
     return f"{words} (scipy least_squares status {res.status}, {res.nfev} evaluations)"
 
 
@@ -70,22 +76,33 @@ def remaining_step(J: np.ndarray, r: np.ndarray, x: np.ndarray, lo: np.ndarray, 
     lose over what one standard error of that direction is worth: sqrt of that ratio (the step's
     length in standard errors). J, r: Jacobian and residuals scaled to unit noise up to a common
     factor (the reduced chi-square takes it out); ``colour``: the residuals' integrated
-    autocorrelation time in samples (each carries 1/colour of a white sample's information)."""
+    autocorrelation time in samples (each carries 1/colour of a white sample's information).
+
+    Solved on the p x p normal equations, not the n rows: |r + J s|^2 = |r|^2 - |c|^2 + |R s + c|^2
+    for any R, c with R^T R = J^T J and R^T c = J^T r, so the bounded step is the same and costs
+    no more than one product J^T J (the solver asks this after every iteration)."""
     from scipy.optimize import lsq_linear
 
     n, p = J.shape
-    norms = np.linalg.norm(J, axis=0)
+    H, g, rr = J.T @ J, J.T @ r, float(r @ r)  # a non-finite entry of J or r shows in these
+    if not (np.all(np.isfinite(H)) and np.all(np.isfinite(g)) and np.isfinite(rr)):
+        return float("inf")
+    norms = np.sqrt(np.diag(H))
     seen = norms > 0
-    if not np.any(seen) or not np.all(np.isfinite(J)) or not np.all(np.isfinite(r)):
-        return float("inf") if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))) else 0.0
-    Js = J[:, seen] / norms[seen]
+    if not np.any(seen):
+        return 0.0
+    ns = norms[seen]
+    lam, V = np.linalg.eigh(H[np.ix_(seen, seen)] / np.outer(ns, ns))  # of the column-scaled Jacobian
+    kept = lam > RANK_RCOND ** 2 * lam[-1]  # directions the data see (null_directions names the others)
+    R = np.sqrt(lam[kept])[:, None] * V[:, kept].T
+    c = (V[:, kept].T @ (g[seen] / ns)) / np.sqrt(lam[kept])
     # bounds in the scaled coordinates; a bound already reached stays closed (a hair inside)
-    lo_s = (lo - x)[seen] * norms[seen]
-    hi_s = (hi - x)[seen] * norms[seen]
+    lo_s = (lo - x)[seen] * ns
+    hi_s = (hi - x)[seen] * ns
     lo_s, hi_s = np.minimum(lo_s, 0.0), np.maximum(hi_s, 0.0)
-    step = lsq_linear(Js, -r, bounds=(lo_s, hi_s + 1e-300), method="bvls").x
-    lose = float(r @ r - np.sum((r + Js @ step) ** 2))
-    chi2 = float(r @ r) / max(n - p, 1)
+    step = lsq_linear(R, -c, bounds=(lo_s, hi_s + 1e-300), method="bvls").x
+    lose = float(c @ c - np.sum((c + R @ step) ** 2))
+    chi2 = rr / max(n - p, 1)
     return float(np.sqrt(max(lose, 0.0) / (max(chi2, 1e-300) * max(colour, 1.0))))
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from scipy import optimize
 
 from stid.errors import InputError
+from stid.fit import convergence
 from stid.stats import autocorr_length
 
 
@@ -83,43 +84,22 @@ def starting_points(model, space: ParamSpace, p0: dict, multistart: bool) -> lis
     return starts
 
 
-# Residuals scaled to unit noise: a solve stops once the cost it can still lose is below
-# this, half the square of a tenth of a standard error. Closer than that to the optimum moves
-# no reported figure; scipy's relative ftol (1e-8) asks for 1e-4 of cost on 10^4 samples, and
-# on a model that misses an effect Gauss-Newton approaches it only linearly (the residuals are
-# large), so the last half of a solve was spent there. Coloured residuals (integrated
-# autocorrelation time tau samples) carry 1/tau of the information of white ones: a standard
-# error is sqrt(tau) times the white one, and the cost to lose may be tau times this.
-SETTLED_COST = 0.5 * 0.1 ** 2
-
-
-def settled(tol: float = SETTLED_COST, initial=None, to_lose=None):
-    """A callback for scipy's trf that stops the solve when the cost still to lose is below
-    ``tol``, estimated from the last three reductions as a geometric series (the slower of
-    the last two ratios, so one lucky step does not end it). ``initial()``: the cost at the
-    start, which scipy does not report: with it the first three iterations can settle a
-    solve (else a solve that starts near its optimum takes a fourth, in which the trust
-    region shrinks step after step because no step can lower the cost any more).
-    ``to_lose(x)``: the cost still to lose at x as the solver's own model predicts it (the
-    Gauss-Newton decrement, or None): a solve started next to its optimum, whose first step
-    lands there, ends after that step instead of three."""
-    costs = []
+def stop_when_stationary(prob, lo, hi, colour: float = 1.0):
+    """A callback for scipy's trf that ends the solve once the Gauss-Newton step still to go,
+    within the bounds and from the Jacobian at the new iterate, is below
+    convergence.STEP_SE_STOP standard errors: the measure the verdict (convergence.judge)
+    takes at the end, so a solve this rule stopped is never judged short of its optimum. It
+    needs residuals scaled to unit noise; ``colour`` is their integrated autocorrelation time
+    in samples (coloured residuals carry 1/colour of the information of white ones). scipy's
+    relative ftol (1e-8) asks for far less on a long run (1e-4 of cost on 10^4 samples), and
+    on a model that misses an effect trf approaches the optimum only linearly (the residuals
+    are large), so a solve spent its last half there."""
 
     def callback(intermediate_result):
-        if not costs and initial is not None:
-            costs.append(float(initial()))
-        costs.append(float(intermediate_result.cost))
-        if to_lose is not None:
-            left = to_lose(intermediate_result.x)
-            if left is not None and left < tol:
-                raise StopIteration
-        if len(costs) < 4:
+        if prob.last_jac is None or not np.array_equal(prob.last_jac[0], intermediate_result.x):
             return
-        d = -np.diff(costs[-4:])
-        if np.any(d <= 0):
-            return
-        rho = max(d[1] / d[0], d[2] / d[1])
-        if rho < 1.0 and d[2] * rho / (1.0 - rho) < tol:
+        _, f, J = prob.last_jac
+        if convergence.remaining_step(J, f, prob.last_jac[0], lo, hi, colour) < convergence.STEP_SE_STOP:
             raise StopIteration
 
     return callback
@@ -141,7 +121,6 @@ class _Residuals:
         self.known = known
         self.last = None  # (x, f) of the newest evaluation: the differences start from it
         self.last_jac = None  # (x, f, J) of the newest Jacobian
-        self.first_cost = None  # at the start (the stopping rule's first term)
 
     def fun(self, x):
         if self.known is not None and np.array_equal(x, self.known[0]):
@@ -149,8 +128,6 @@ class _Residuals:
         else:
             f = np.asarray(self.residual(self.space.to_p(x)), float)
         self.last = (np.array(x, float), f)
-        if self.first_cost is None:
-            self.first_cost = 0.5 * float(f @ f)
         return f
 
     def jac(self, x):
@@ -170,23 +147,6 @@ class _Residuals:
         self.last_jac = (self.last[0], f0, J)
         return J
 
-    def decrement(self, x):
-        """The cost a full Gauss-Newton step from x would lose (0.5 |J s|^2, s the step):
-        what is still to lose if the cost is as quadratic as the Jacobian says; None when
-        x is not where the newest Jacobian was taken, or it has no full rank."""
-        if self.last_jac is None or not np.array_equal(self.last_jac[0], x):
-            return None
-        _, f, J = self.last_jac
-        g = J.T @ f
-        H = J.T @ J
-        try:
-            s = np.linalg.solve(H, g)
-        except np.linalg.LinAlgError:
-            return None
-        if not np.all(np.isfinite(s)):
-            return None
-        return 0.5 * float(g @ s)
-
     def _steps(self, x):
         """scipy.optimize._numdiff's absolute steps for '2-point' within the bounds."""
         sign = np.where(x >= 0, 1.0, -1.0)
@@ -203,13 +163,11 @@ class _Residuals:
 
 
 def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = False, known=None,
-                  colour: float = 1.0, near: bool = False, **kw):
+                  colour: float = 1.0, **kw):
     """Run scipy's bounded trust-region least squares from each start; keep the best.
-    ``unit_noise``: the residuals are scaled to unit noise, so the solve may stop once
-    it is statistically at the optimum (SETTLED_COST), in standard errors of residuals
-    whose integrated autocorrelation time is ``colour`` samples; ``near`` (with unit_noise):
-    the start is next to the optimum (the optimum of most of the same data), so the solve
-    also stops once the Gauss-Newton decrement says it is there. ``known``: (x, residuals,
+    ``unit_noise``: the residuals are scaled to unit noise, so the solve stops once it is
+    statistically at the optimum (stop_when_stationary), in standard errors of residuals
+    whose integrated autocorrelation time is ``colour`` samples. ``known``: (x, residuals,
     Jacobian) at the first start, in the solver's coordinates, when the caller has them
     (the Jacobian may be None: then only the residuals are known)."""
     lo, hi = space.bounds_x()
@@ -228,8 +186,7 @@ def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = 
         prob = _Residuals(residual, space, lo, hi, diff_step,
                           (x0, known[1], known[2]) if start_known is not None else None)
         if unit_noise:
-            kw["callback"] = settled(SETTLED_COST * max(float(colour), 1.0), initial=lambda: prob.first_cost,
-                                     to_lose=prob.decrement if near else None)
+            kw["callback"] = stop_when_stationary(prob, lo, hi, colour)
         try:
             res = optimize.least_squares(prob.fun, x0, jac=prob.jac, bounds=(lo, hi), method="trf",
                                          x_scale="jac", **kw)

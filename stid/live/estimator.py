@@ -4,14 +4,13 @@ run is done.
 
 The first fit is ``stid.fit.fitting.fit`` itself (the one path of every command). Each
 later one is the same output-error fit (``fit_time``) started from the previous estimate
-instead of a multistart, with each output weighted by the previous residual level and
-stopped once statistically at the optimum (``settle``): ``stid fit`` finds those weights by
-refitting once with the levels its first solve left (maximum likelihood), and stops its
-refit by the same rule; across updates the weights are refined the same way, one update at
-a time, on data that grew by a few seconds. That saves an update the first solve, and the
-optimum is the same (tests/test_live.py compares it with ``stid fit`` on the file at
-that moment). The intervals are ``stid fit``'s (noise, block jackknife, geometry
-allowance).
+instead of a multistart (``settle``): it skips the first solve, which only finds the
+neighbourhood, and from there both take the same steps to the same point: the outputs
+weighted by the residual levels the point leaves (maximum likelihood), re-weighted until
+the answer is stationary at its own weights, each solve ended by the rule the verdict
+judges by (stid.fit.convergence). So the optimum and the verdict are ``stid fit``'s on the
+file at that moment (tests/test_live.py, tests/test_fit_live_agree.py). The intervals are
+``stid fit``'s (noise, block jackknife, geometry allowance).
 """
 
 from __future__ import annotations
@@ -115,7 +114,6 @@ class Estimator:
         self.targets_from = targets_from
         self.seq = 0
         self._start: dict | None = None
-        self._sigma = None
         self.history: list = []
         self.last_fit = None
 
@@ -161,13 +159,12 @@ class Estimator:
                 res = fit(runs, self.vehicle, self.model_name, "time")
             else:
                 res = fit_time(self.model, stretches, init=self._start, multistart=False, intervals="model-error",
-                               sigma=self._sigma, settle=True)
+                               settle=True)
         except StidError as e:
             up.state.append(f"the fit failed on the data so far: {e}")
             return
         self.last_fit = res
         self._start = res.all_params()
-        self._sigma = residual_sigma(res)
         up.fit = dict(res.fit)
         half = res.half95
         for i, name in enumerate(res.names):
@@ -181,14 +178,6 @@ class Estimator:
         for name, why in res.undetermined.items():
             if up.converged:
                 up.state.append(f"{name}: no interval ({why}): the data so far do not determine it")
-
-
-def residual_sigma(res) -> np.ndarray:
-    """Each output's residual level at the estimate: the next update's weights (what
-    ``fit_time``'s reweighting takes from its first solve)."""
-    e = np.vstack([(p.y - p.yhat)[p.keep] for p in res.predictions])
-    sigma = np.std(e, axis=0)
-    return np.where(sigma > 0, sigma, 1.0)
 
 
 def done_line(up: Update) -> str | None:
