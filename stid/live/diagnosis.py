@@ -86,11 +86,8 @@ def named(doc: dict) -> list:
 def verdict(output: str, driving_s: float) -> str | None:
     """One line from ``stid diagnose --json``: what it names with their parameters, or that
     nothing is missing; None when the output is not a diagnosis."""
-    try:
-        doc = json.loads(output)
-    except (json.JSONDecodeError, TypeError):
-        return None
-    if not isinstance(doc, dict) or "candidates" not in doc:
+    doc = _diagnosis(output)
+    if doc is None:
         return None
     effects = named(doc)
     at = f"(stid diagnose, {driving_s:.0f} s of driving)"
@@ -114,22 +111,26 @@ def verdict(output: str, driving_s: float) -> str | None:
 
 def named_effect(output: str) -> str | None:
     """What to add to the model (``a+b`` for a pair), or None."""
-    try:
-        doc = json.loads(output)
-    except (json.JSONDecodeError, TypeError):
+    doc = _diagnosis(output)
+    if doc is None:
         return None
-    effects = named(doc) if isinstance(doc, dict) else []
-    return "+".join(effects) or None
+    return "+".join(named(doc)) or None
 
 
 def unexplained(output: str) -> bool:
     """The diagnosis names nothing, yet the model is short of its noise floor by more than
     chance: an effect the catalogue lacks (or one of its effects it could not tell)."""
+    doc = _diagnosis(output)
+    return doc is not None and not named(doc) and _unexplained(doc)
+
+
+def _diagnosis(output: str) -> dict | None:
+    """The document of ``stid diagnose --json``; None for any other output (an error, nothing)."""
     try:
         doc = json.loads(output)
     except (json.JSONDecodeError, TypeError):
-        return False
-    return isinstance(doc, dict) and not named(doc) and _unexplained(doc)
+        return None
+    return doc if isinstance(doc, dict) and "candidates" in doc else None
 
 
 def _unexplained(doc: dict) -> bool:
