@@ -139,7 +139,10 @@ _GRIDS: dict = {}  # speed series -> its grid: a fit simulates the same stretche
 def speed_grid(vx: np.ndarray, step: float = GRID_STEP):
     """Grid speeds covering vx; for every sample the grid interval and the weight of its
     upper end, at the sample (outputs) and half a step later (the step's midpoint speed,
-    which makes the time-varying recursion second-order accurate)."""
+    which makes the time-varying recursion second-order accurate); and the lattice index
+    of the first grid speed. The grid is a piece of one lattice, log v = k * step for every
+    integer k, the same for every series: stretches whose speeds overlap share grid speeds,
+    and so the discretisations at them (_NodeFoh)."""
     vx = np.ascontiguousarray(vx, float)
     key = (len(vx), step, hash(vx.tobytes()))
     hit = _GRIDS.get(key)
@@ -153,9 +156,10 @@ def speed_grid(vx: np.ndarray, step: float = GRID_STEP):
 def _speed_grid(vx: np.ndarray, step: float):
     v = np.maximum(np.asarray(vx, float), V_FLOOR)
     lv = np.log(v)
-    lo, hi = float(lv.min()), float(lv.max())
-    n = max(2, int(np.ceil((hi - lo) / step)) + 1)
-    grid_l = lo + step * np.arange(n)
+    k_lo = int(np.floor(lv.min() / step))
+    n = max(2, int(np.ceil(lv.max() / step)) - k_lo + 1)
+    lo = k_lo * step
+    grid_l = step * (k_lo + np.arange(n))
 
     def locate(x):
         pos = np.clip((x - lo) / step, 0.0, n - 1.0)
@@ -165,7 +169,7 @@ def _speed_grid(vx: np.ndarray, step: float):
     idx, w = locate(lv)
     mid = np.log(0.5 * (v[:-1] + v[1:])) if len(v) > 1 else lv
     idx_s, w_s = locate(np.concatenate([mid, lv[-1:]]))
-    return np.exp(grid_l), idx, w, idx_s, w_s
+    return np.exp(grid_l), idx, w, idx_s, w_s, k_lo
 
 
 def _batched_foh(A, B, dt):
@@ -207,43 +211,93 @@ def _batched_foh(A, B, dt):
 
 
 # The discretised matrices are smooth in log speed: they are computed at every NODE_EVERY-th
-# grid speed (an 8% spacing) and the grid filled in between by cubic interpolation. On the
-# catalogue's effects that fill is off by 1e-7 to 2e-6 of the largest entry, 6 to 100 times
+# speed of the lattice (an 8% spacing) and the grid filled in between by cubic interpolation. On
+# the catalogue's effects that fill is off by 1e-7 to 2e-6 of the largest entry, 6 to 100 times
 # less than the linear interpolation between grid speeds the recursion does; against an ODE
 # solver the simulation's error stays 3.4e-5 (tests/test_track_runs.py). A fourth of the
-# eigendecompositions.
+# eigendecompositions, and the nodes are shared by every stretch of an evaluation (_NodeFoh).
 NODE_EVERY = 4
 _FILLS: dict = {}
 
 
-def _fill(n: int):
-    """(node indices, (n, nodes) weights) filling a grid of n speeds from its nodes by cubic
-    Lagrange interpolation over the four nearest nodes (the grid is uniform in log speed,
-    so this depends on n only)."""
-    hit = _FILLS.get(n)
+def _fill(k_lo: int, n: int):
+    """((n, nodes) weights, first node, last node) filling the lattice speeds k_lo .. k_lo + n - 1
+    from the lattice's nodes (every NODE_EVERY-th speed) by cubic Lagrange interpolation over
+    the four nearest: two below a speed, two above (a speed on a node takes that node)."""
+    key = (k_lo, n)
+    hit = _FILLS.get(key)
     if hit is None:
-        nodes = np.arange(0, n, NODE_EVERY)
-        if nodes[-1] != n - 1:
-            nodes = np.append(nodes, n - 1)
-        W = np.zeros((n, len(nodes)))
-        for i in range(n):
-            j = int(np.clip(np.searchsorted(nodes, i) - 2, 0, len(nodes) - 4))
-            xs = nodes[j:j + 4].astype(float)
-            for a in range(4):
-                others = np.delete(xs, a)
-                W[i, j + a] = np.prod((i - others) / (xs[a] - others))
-        hit = _FILLS[n] = (nodes, W)
+        k = k_lo + np.arange(n)
+        below = k // NODE_EVERY  # the node at or below each speed (floor division: also for k < 0)
+        frac = (k - below * NODE_EVERY) / NODE_EVERY  # 0 <= frac < 1
+        j_first, j_last = int(below[0]) - 1, int(below[-1]) + 2
+        xs = np.arange(-1.0, 3.0)  # the four nodes' positions, in node spacings from `below`
+        W = np.ones((n, 4))
+        for a in range(4):
+            for b in range(4):
+                if b != a:
+                    W[:, a] *= (frac - xs[b]) / (xs[a] - xs[b])
+        fill = np.zeros((n, j_last - j_first + 1))  # as one matrix: the fill is one product
+        np.put_along_axis(fill, (below - 1 - j_first)[:, None] + np.arange(4)[None, :], W, axis=1)
+        if len(_FILLS) >= 256:
+            _FILLS.pop(next(iter(_FILLS)))
+        hit = _FILLS[key] = (fill, j_first, j_last)
     return hit
 
 
-def _foh_on_grid(A, B, dt):
-    """_batched_foh on a grid of speeds, at its nodes only when the grid is long enough."""
-    n = len(A)
-    if n < 2 * NODE_EVERY + 2:
-        return _batched_foh(A, B, dt)
-    nodes, W = _fill(n)
-    return tuple((W @ M.reshape(len(nodes), -1)).reshape((n,) + M.shape[1:])
-                 for M in _batched_foh(A[nodes], B[nodes], dt))
+class _NodeFoh:
+    """The first-order-hold matrices of one (A, B) speed law at one sample period, at the
+    lattice's nodes, computed as stretches ask for them: every stretch of an evaluation
+    simulates the same parameters, and a parameter that moves neither A nor B (a sensor's
+    place, scale or offset: a column of the Jacobian) leaves them as they were (``_node_foh``
+    finds them by the law's coefficients). ``hint``: the nodes the previous parameters'
+    stretches asked for (a solver's next evaluation simulates the same stretches): computed
+    at the first request, in one batched discretisation instead of one per stretch."""
+
+    def __init__(self, law: "SpeedLaw", dt: float, hint=None):
+        self.law, self.dt, self.hint = law, dt, hint
+        self.first = None  # node index of mats[.][0]
+        self.mats = None  # (F, G0, G1) at nodes first .. first + len - 1
+        self.asked = None  # (first, last) node of every request so far
+
+    def at(self, j_first: int, j_last: int):
+        self.asked = (j_first, j_last) if self.asked is None else (min(self.asked[0], j_first),
+                                                                   max(self.asked[1], j_last))
+        if self.first is None:
+            lo, hi = (j_first, j_last) if self.hint is None else (min(self.hint[0], j_first),
+                                                                  max(self.hint[1], j_last))
+            self.mats, self.first = self._compute(lo, hi), lo
+        else:
+            have_last = self.first + len(self.mats[0]) - 1
+            if j_first < self.first:
+                low = self._compute(j_first, self.first - 1)
+                self.mats = tuple(np.concatenate([a, b]) for a, b in zip(low, self.mats))
+                self.first = j_first
+            if j_last > have_last:
+                high = self._compute(have_last + 1, j_last)
+                self.mats = tuple(np.concatenate([a, b]) for a, b in zip(self.mats, high))
+        a = j_first - self.first
+        return tuple(m[a:a + j_last - j_first + 1] for m in self.mats)
+
+    def _compute(self, j_first: int, j_last: int):
+        v = np.exp(GRID_STEP * NODE_EVERY * np.arange(j_first, j_last + 1))
+        A, B = self.law.at(v, parts=2)
+        return _batched_foh(A, B, self.dt)
+
+
+_NODE_FOH: dict = {}  # (dt, the A and B law's coefficients) -> _NodeFoh, newest last
+
+
+def _node_foh(law: "SpeedLaw", dt: float) -> _NodeFoh:
+    key = (float(dt), law.coef[:, :law.ends[1]].tobytes())
+    hit = _NODE_FOH.pop(key, None)
+    if hit is None:
+        newest = next(reversed(_NODE_FOH.values()), None)
+        hit = _NodeFoh(law, dt, hint=newest.asked if newest is not None and newest.dt == dt else None)
+        if len(_NODE_FOH) >= 16:  # the parameter vectors of a Jacobian and the point it is taken at
+            _NODE_FOH.pop(next(iter(_NODE_FOH)))
+    _NODE_FOH[key] = hit
+    return hit
 
 
 PROBE_SPEEDS = (1.0, 3.0, 9.0, 4.7)  # m/s: three determine the speed law, the fourth checks it
@@ -266,6 +320,7 @@ class SpeedLaw:
         built = [parts(v) for v in PROBE_SPEEDS[:4 if check else 3]]
         self.shapes = [b.shape for b in built[0]]
         self._ends = np.cumsum([b.size for b in built[0]])[:-1]
+        self.ends = self._ends
         # every entry of every matrix in one row per build: one product finds all the laws
         X = np.stack([np.concatenate([b.ravel() for b in bs]) for bs in built])
         c = self._V_INV @ X[:3]  # (c0, c1, c2) of every entry
@@ -279,11 +334,13 @@ class SpeedLaw:
                 self.coef = None
         self.ok = self.coef is not None
 
-    def at(self, grid: np.ndarray) -> list:
+    def at(self, grid: np.ndarray, parts: int = 5) -> list:
+        """The first ``parts`` matrices (A, B, C, D, offsets) at each grid speed."""
         g = np.asarray(grid, float)[:, None]
-        c = self.coef
+        c = self.coef[:, :self._ends[parts - 1]] if parts < len(self.shapes) else self.coef
         flat = c[0][None] + c[1][None] * g + c[2][None] / g
-        return [a.reshape((len(g),) + shape) for a, shape in zip(np.split(flat, self._ends, axis=1), self.shapes)]
+        return [a.reshape((len(g),) + shape) for a, shape in zip(np.split(flat, self._ends[:parts - 1], axis=1),
+                                                                  self.shapes[:parts])]
 
 
 def system_parts(build, outputs, inputs):
@@ -317,18 +374,23 @@ class LpvSimulator:
     """
 
     def __init__(self, build, vx, dt: float, outputs, inputs, law: SpeedLaw | None = None):
-        grid, self.idx, self.w, self.idx_s, self.w_s = speed_grid(vx)
+        grid, self.idx, self.w, self.idx_s, self.w_s, k_lo = speed_grid(vx)
         self.n_t = len(self.idx)
         parts = system_parts(build, outputs, inputs)
         if law is None:
             law = SpeedLaw(parts)
+        fill, j_first, j_last = _fill(k_lo, len(grid))
         if law.ok:
             stacks = law.at(grid)
-        else:  # an effect with another speed law: build at every grid speed
+            nodes = _node_foh(law, dt).at(j_first, j_last)
+        else:  # an effect with another speed law: built at every grid speed and node
             every = [parts(v) for v in grid]
             stacks = [np.stack([e[j] for e in every]) for j in range(5)]
+            at_nodes = [parts(v) for v in np.exp(GRID_STEP * NODE_EVERY * np.arange(j_first, j_last + 1))]
+            nodes = _batched_foh(np.stack([e[0] for e in at_nodes]), np.stack([e[1] for e in at_nodes]), dt)
+        self.F, self.G0, self.G1 = ((fill @ M.reshape(len(M), -1)).reshape((len(grid),) + M.shape[1:])
+                                    for M in nodes)
         A, B, C, D, off = stacks
-        self.F, self.G0, self.G1 = _foh_on_grid(A, B, dt)
         # C-ordered, as the compiled recursion was cached for (another layout compiles anew)
         self.C, self.D, self.off = (np.ascontiguousarray(a) for a in (C, D, off))
         # steady state at the first sample's speed for a unit input on each channel
