@@ -201,12 +201,12 @@ def noise_psd_from_still(runs, seg_s: float = 1.0, f_prefilter: float = 20.0, ta
     noise alone, with no dynamics and no model error in it. Signals get the same
     prefilter and rate as the fits. None when the runs never stand still."""
     from stid import segments
-    from stid.fit.dataset import _decimate, prefilter
+    from stid.fit.dataset import _decimate, decimation, prefilter
 
     acc = {"ay": [], "r": []}
     for run in runs:
         fs = run.fs
-        q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
+        q = decimation(fs, target_fs)
         mask = segments.still_mask(run.vx, fs)
         for a, b in segments.runs_of(mask, int(1.5 * seg_s * fs)):
             for name in ("ay", "r"):

@@ -83,12 +83,24 @@ def prefilter(x: np.ndarray, fs: float, f_hz: float = PREFILTER_HZ) -> np.ndarra
     return filters.sosfiltfilt(filters.butter_lowpass_sos(4, f_hz, fs), x)
 
 
+def decimation(fs: float, target_fs: float) -> int:
+    """The decimation factor that brings ``fs`` nearest ``target_fs`` (as a ratio; none when
+    fs is within 1.5x of it). Rounding fs / target_fs would flip at a ratio of 2.5 (500 Hz
+    for 200) with the last bit of a median sample interval: the same car's log then fitted
+    at 250 Hz or at 167 Hz, 1.5x the time, depending on how its clock's ticks rounded."""
+    if fs <= 1.5 * target_fs:
+        return 1
+    x = fs / target_fs
+    n = int(x)
+    return n + 1 if x * x > n * (n + 1) else n
+
+
 def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", "vx")):
     """Prefilter and decimate whole signals of a run (so stretches cut from them carry
     no filter edge transients): (decimation factor, dict of arrays, time). The dict
     holds ``valid`` too: False where the prefilter reaches a lost sample."""
     fs = run.fs
-    q = max(1, int(round(fs / target_fs))) if fs > 1.5 * target_fs else 1
+    q = decimation(fs, target_fs)
     # every signal at once, one column each: the same numbers as one by one (each column is
     # filtered on its own); one call into scipy.signal's compiled filter where stid live uses it
     cols = np.column_stack([getattr(run, n) if hasattr(run, n) and getattr(run, n) is not None else run.extra[n]
