@@ -142,6 +142,7 @@ def diagnose_time(d: Path, quick: bool) -> dict:
 def scaling(d: Path, quick: bool) -> dict:
     """Fit and diagnose time as the data grow (the runs tiled end to end) and as candidates grow."""
     from stid.diagnose import diagnose
+    from stid.fit import dataset
     from stid.fit.fitting import fit
     from stid.load import load_runs
     from stid.models.effect import available_effects
@@ -158,12 +159,16 @@ def scaling(d: Path, quick: bool) -> dict:
             tile = lambda x: None if x is None else np.tile(x, k)  # noqa: E731
             runs.append(Run(r.name, np.arange(n * k) * r.dt, tile(r.steer), tile(r.ay), tile(r.r), tile(r.vx),
                             tile(r.ax), None, {}, dict(r.meta)))
-        # best of 2 at every length: one fit of the x1 runs takes 0.2-0.35 s, and a single sample of
-        # it (the ratios' denominator) moved the x16 ratio between x16 and x29 from bench to bench
-        t_fit, _ = _best_of(lambda: fit(runs, v, "bicycle", "time"), n=1 if quick else 2)
+        # best of several at every length, most where a fit is shortest: one fit of the x1 runs
+        # takes 0.15-0.35 s, and a single sample of it (the ratios' denominator) moved the x16 ratio
+        # between x16 and x29 from bench to bench
+        t_fit, _ = _best_of(lambda: fit(runs, v, "bicycle", "time"), n=1 if quick else {1: 5, 4: 3}.get(k, 2))
         t_diag, _ = _best_of(lambda: diagnose(runs, v, "bicycle"), n=1)
-        out["length"].append({"factor": k, "samples": int(sum(len(r.t) for r in runs)), "fit_s": t_fit,
-                              "diagnose_s": t_diag})
+        # the samples the fit works on (the moving stretches, at the fit's rate): what its time
+        # should grow with
+        fitted = int(sum(len(s.t) for s in dataset.dynamic_stretches(runs)))
+        out["length"].append({"factor": k, "samples": int(sum(len(r.t) for r in runs)), "fitted": fitted,
+                              "fit_s": t_fit, "diagnose_s": t_diag})
     names = list(available_effects())
     for m in ((1, len(names)) if quick else (1, 3, len(names))):
         t, _ = _best_of(lambda: diagnose(base, v, "bicycle", candidates=names[:m]), n=1)
