@@ -133,6 +133,51 @@ def test_lpv_simulation_matches_an_ode_solver_at_a_swinging_speed():
     assert np.allclose(y1, y2)
 
 
+
+def test_a_stretch_simulates_the_same_whatever_was_simulated_before_it():
+    """The discretisations at the speed lattice's nodes are shared by every stretch of an
+    evaluation (stid.models.lpv._NodeFoh): a stretch simulated alone, after another at other
+    speeds (which computed some of its nodes, and set the hint for the next), or again, gives
+    the same numbers to round-off (the node matrices are the same numbers; the products that
+    fill the grid from them may add in another order), and still the ODE solver's."""
+    from stid.models import lpv
+
+    slow = bicycle_run(lambda t: 3.0 * (1 + 0.2 * np.sin(2 * np.pi * t / 5.0)), T=15.0, seed=1)
+    fast = bicycle_run(swinging, T=15.0, seed=2)
+    model = Model("bicycle", VEHICLE)
+
+    def sim(run):
+        return model.simulate(TRUE, run["steer"], 1 / 200.0, run["vx"])
+
+    lpv._NODE_FOH.clear()
+    model._laws.clear()
+    alone = sim(fast)
+    lpv._NODE_FOH.clear()
+    model._laws.clear()
+    sim(slow)
+    after = sim(fast)
+    again = sim(fast)
+    scale = np.abs(alone).max(axis=0)
+    assert np.all(np.abs(after - alone).max(axis=0) <= 1e-12 * scale)
+    assert np.all(np.abs(again - alone).max(axis=0) <= 1e-12 * scale)
+    for j, out in enumerate(("ay", "r")):
+        assert np.sqrt(np.mean((after[:, j] - fast[out]) ** 2)) / np.std(fast[out]) < 1e-4
+
+
+@pytest.mark.parametrize("fs, target, q", [(500.0, 200.0, 3), (500.0 * (1 + 1e-13), 200.0, 3),
+                                           (500.0 * (1 - 1e-13), 200.0, 3), (400.0, 200.0, 2),
+                                           (1000.0, 200.0, 5), (300.0, 200.0, 1), (200.0, 200.0, 1),
+                                           (460.0, 200.0, 2), (480.0, 200.0, 2), (495.0, 200.0, 3)])
+def test_the_decimation_factor_is_the_nearest_rate_and_does_not_flip_with_rounding(fs, target, q):
+    """A 500 Hz log for the fit's 200 Hz: 167 Hz (q=3) is nearer as a ratio than 250 Hz, and
+    the choice must not depend on the last bit of the log's median sample interval (it did:
+    round(2.5) went either way)."""
+    from stid.fit.dataset import decimation
+
+    assert decimation(fs, target) == q
+    if q > 1:  # nearest as a ratio among the neighbours
+        assert abs(np.log(fs / q / target)) <= min(abs(np.log(fs / (q + d) / target)) for d in (-1, 1) if q + d >= 1)
+
 def test_noise_free_csv_at_a_swinging_speed_is_fitted_exactly(tmp_path):
     """Another logger's clean linear data, no sensor filter declared: fit >= 99.9%,
     parameters within 0.1% (issue: the model used to filter every source at 50/88 Hz)."""
