@@ -15,11 +15,16 @@ WORKERS = workers.WORKERS
 def worker_pool():
     """Worker processes for one diagnose (None on a one-core machine): the candidates'
     fits, the evidence's per-speed refits and the noise floor are independent, and run
-    beside each other. Forked after the compiled simulator is loaded, so the workers
-    share it instead of each loading it."""
+    beside each other. Forked after the compiled simulator and the effect catalogue are
+    loaded, so the workers share them instead of each loading them (the catalogue's modules
+    cost each worker 10-20 ms at its first job)."""
     from stid.models.lpv import load_compiled
 
-    return workers.worker_pool(WORKERS, before_fork=load_compiled)
+    def before_fork():
+        load_compiled()
+        available_effects()
+
+    return workers.worker_pool(WORKERS, before_fork=before_fork)
 
 
 def in_workers(model_name: str) -> bool:
