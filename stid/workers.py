@@ -22,8 +22,17 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
         return
     from concurrent.futures import ProcessPoolExecutor
 
+    from threadpoolctl import threadpool_limits
+
     if before_fork is not None:
         before_fork()
+    # One BLAS thread in this process and in the workers (forked with this limit): the cores are
+    # the processes', and BLAS's own threads, which wait spinning for their next job, took them
+    # from the other processes. A diagnosis called from Python (a notebook, the bench) ran 2-3x
+    # slower than the same diagnosis as a command, whose BLAS threads had not yet been woken
+    # when the workers started; stid's matrices are a few columns wide, where BLAS threads add
+    # nothing (a fit of 220,000 samples: the same wall time, half the CPU).
+    limit = threadpool_limits(limits=1, user_api="blas")
     ex = ProcessPoolExecutor(max_workers=workers, initializer=_leave_interrupts_to_the_command)
     try:
         yield ex
@@ -44,6 +53,7 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
         if writer is not None:
             writer.close()
         ex.shutdown(wait=True, cancel_futures=True)
+        limit.restore_original_limits()
 
 
 def _leave_interrupts_to_the_command():

@@ -4,6 +4,7 @@ workers' jobs."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -57,3 +58,34 @@ def test_a_pool_ended_while_its_workers_write_results_does_not_hang():
     out = subprocess.run([sys.executable, "-c", _HALF_WRITTEN], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout.strip() == "ended", out.stderr
     assert "Traceback" not in out.stderr, out.stderr
+
+
+_BLAS_THREADS = r"""
+import json, os
+import numpy as np
+from threadpoolctl import threadpool_info, threadpool_limits
+from stid.workers import worker_pool
+
+def blas_threads():
+    return sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"})
+
+threadpool_limits(limits=2, user_api="blas")  # as a 2-core machine starts: more than one
+np.linalg.svd(np.random.default_rng(0).normal(size=(40000, 5)), full_matrices=False)  # BLAS awake
+before = blas_threads()
+with worker_pool(2) as pool:
+    inside = blas_threads()
+    in_worker = pool.submit(blas_threads).result()
+after = blas_threads()
+print(json.dumps({"before": before, "inside": inside, "worker": in_worker, "after": after}))
+"""
+
+
+def test_blas_runs_one_thread_per_process_while_workers_run_and_is_given_back_after():
+    """BLAS's threads wait for work spinning: with worker processes beside them they took the
+    cores from the workers (a diagnosis called from Python ran 2-3x slower than as a command).
+    While a pool runs, this process and its workers use one BLAS thread each; afterwards this
+    process has its own setting back."""
+    out = subprocess.run([sys.executable, "-c", _BLAS_THREADS], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout)
+    assert got == {"before": [2], "inside": [1], "worker": [1], "after": [2]}, got
