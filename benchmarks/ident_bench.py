@@ -104,6 +104,7 @@ def fit_times(d: Path, quick: bool) -> dict:
                             str(VEHICLE)]) for _ in range(n))
     return {"fit_time_s": t_fit, "fit_track_s": t_track, "fit_freq_s": t_freq, "study_s": t_study, "study_nfev": int(opt.nfev),
             "cli_fit_s": t_cli, "cli_study_s": t_cli_study, "cli_n": n, "samples": int(sum(len(r.t) for r in runs)),
+            "fitted_fs": 1.0 / dataset.dynamic_stretches(runs)[0].dt,
             "stid": res.params(), "study": p_study}
 
 
