@@ -31,7 +31,7 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
     # from the other processes. A diagnosis called from Python (a notebook, the bench) ran 2-3x
     # slower than the same diagnosis as a command, whose BLAS threads had not yet been woken
     # when the workers started; stid's matrices are a few columns wide, where BLAS threads add
-    # nothing (a fit of 220,000 samples: the same wall time, half the CPU).
+    # nothing (a fit of 330,000 samples: the same wall time, half the CPU).
     limit = threadpool_limits(limits=1, user_api="blas")
     ex = ProcessPoolExecutor(max_workers=workers, initializer=_leave_interrupts_to_the_command)
     try:
