@@ -256,28 +256,33 @@ class _NodeFoh:
 
     def __init__(self, law: "SpeedLaw", dt: float, hint=None):
         self.law, self.dt, self.hint = law, dt, hint
-        self.first = None  # node index of mats[.][0]
-        self.mats = None  # (F, G0, G1) at nodes first .. first + len - 1
+        # (node index of the first, (F, G0, G1) at nodes first .. first + len - 1), replaced whole:
+        # a fit in another thread (a Dask worker's) that shares these parameters reads either the
+        # old or the new, never one's index with the other's matrices
+        self.held = None
         self.asked = None  # (first, last) node of every request so far
 
     def at(self, j_first: int, j_last: int):
         self.asked = (j_first, j_last) if self.asked is None else (min(self.asked[0], j_first),
                                                                    max(self.asked[1], j_last))
-        if self.first is None:
+        held = self.held
+        if held is None:
             lo, hi = (j_first, j_last) if self.hint is None else (min(self.hint[0], j_first),
                                                                   max(self.hint[1], j_last))
-            self.mats, self.first = self._compute(lo, hi), lo
+            held = (lo, self._compute(lo, hi))
         else:
-            have_last = self.first + len(self.mats[0]) - 1
-            if j_first < self.first:
-                low = self._compute(j_first, self.first - 1)
-                self.mats = tuple(np.concatenate([a, b]) for a, b in zip(low, self.mats))
-                self.first = j_first
-            if j_last > have_last:
-                high = self._compute(have_last + 1, j_last)
-                self.mats = tuple(np.concatenate([a, b]) for a, b in zip(self.mats, high))
-        a = j_first - self.first
-        return tuple(m[a:a + j_last - j_first + 1] for m in self.mats)
+            first, mats = held
+            last = first + len(mats[0]) - 1
+            if j_first < first:
+                mats = tuple(np.concatenate([a, b]) for a, b in zip(self._compute(j_first, first - 1), mats))
+                first = j_first
+            if j_last > last:
+                mats = tuple(np.concatenate([a, b]) for a, b in zip(mats, self._compute(last + 1, j_last)))
+            held = (first, mats)
+        self.held = held
+        first, mats = held
+        a = j_first - first
+        return tuple(m[a:a + j_last - j_first + 1] for m in mats)
 
     def _compute(self, j_first: int, j_last: int):
         v = np.exp(GRID_STEP * NODE_EVERY * np.arange(j_first, j_last + 1))
@@ -289,7 +294,7 @@ _NODE_FOH: dict = {}  # (dt, the A and B law's coefficients) -> _NodeFoh, newest
 
 
 def _node_foh(law: "SpeedLaw", dt: float) -> _NodeFoh:
-    key = (float(dt), law.coef[:, :law.ends[1]].tobytes())
+    key = (float(dt), law.coef[:, :law._ends[1]].tobytes())
     hit = _NODE_FOH.pop(key, None)
     if hit is None:
         newest = next(reversed(_NODE_FOH.values()), None)
@@ -320,7 +325,6 @@ class SpeedLaw:
         built = [parts(v) for v in PROBE_SPEEDS[:4 if check else 3]]
         self.shapes = [b.shape for b in built[0]]
         self._ends = np.cumsum([b.size for b in built[0]])[:-1]
-        self.ends = self._ends
         # every entry of every matrix in one row per build: one product finds all the laws
         X = np.stack([np.concatenate([b.ravel() for b in bs]) for bs in built])
         c = self._V_INV @ X[:3]  # (c0, c1, c2) of every entry
