@@ -29,9 +29,8 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
     # One BLAS thread in this process and in the workers (forked with this limit): the cores are
     # the processes', and BLAS's own threads, which wait spinning for their next job, took them
     # from the other processes. A diagnosis called from Python (a notebook, the bench) ran 2-3x
-    # slower than the same diagnosis as a command, whose BLAS threads had not yet been woken
-    # when the workers started; stid's matrices are a few columns wide, where BLAS threads add
-    # nothing (a fit of 330,000 samples: the same wall time, half the CPU).
+    # slower than alone (a command gained 5-10%); stid's matrices are a few columns wide, where
+    # BLAS threads add nothing (a fit of 330,000 samples: the same wall time, half the CPU).
     limit = threadpool_limits(limits=1, user_api="blas")
     ex = ProcessPoolExecutor(max_workers=workers, initializer=_leave_interrupts_to_the_command)
     try:
@@ -52,8 +51,10 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
         writer = getattr(getattr(ex, "_result_queue", None), "_writer", None)
         if writer is not None:
             writer.close()
-        ex.shutdown(wait=True, cancel_futures=True)
-        limit.restore_original_limits()
+        try:
+            ex.shutdown(wait=True, cancel_futures=True)
+        finally:
+            limit.restore_original_limits()
 
 
 def _leave_interrupts_to_the_command():

