@@ -163,13 +163,14 @@ def scaling(d: Path, quick: bool) -> dict:
         # best of several at every length, most where a fit is shortest: one fit of the x1 runs
         # takes 0.15-0.35 s, and a single sample of it (the ratios' denominator) moved the x16 ratio
         # between x16 and x29 from bench to bench
-        t_fit, _ = _best_of(lambda: fit(runs, v, "bicycle", "time"), n=1 if quick else {1: 5, 4: 3}.get(k, 2))
+        n_fit = 1 if quick else {1: 5, 4: 3}.get(k, 2)
+        t_fit, _ = _best_of(lambda: fit(runs, v, "bicycle", "time"), n=n_fit)
         t_diag, _ = _best_of(lambda: diagnose(runs, v, "bicycle"), n=1)
         # the samples the fit works on (the moving stretches, at the fit's rate): what its time
         # should grow with
         fitted = int(sum(len(s.t) for s in dataset.dynamic_stretches(runs)))
         out["length"].append({"factor": k, "samples": int(sum(len(r.t) for r in runs)), "fitted": fitted,
-                              "fit_s": t_fit, "diagnose_s": t_diag})
+                              "fit_s": t_fit, "fit_n": n_fit, "diagnose_s": t_diag})
     names = list(available_effects())
     for m in ((1, len(names)) if quick else (1, 3, len(names))):
         t, _ = _best_of(lambda: diagnose(base, v, "bicycle", candidates=names[:m]), n=1)

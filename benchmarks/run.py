@@ -108,7 +108,7 @@ def _rows(quick: bool, data_dir):
         rf, rd = row["fit_s"] / base["fit_s"], row["diagnose_s"] / base["diagnose_s"]
         data = row["fitted"] / base["fitted"]
         yield ("scaling", f"run length x{row['factor']} ({row['samples']:,} samples, {row['fitted']:,} fitted: "
-                          f"x{data:.1f}; fit best of {1 if quick else {1: 5, 4: 3}.get(row['factor'], 2)}, "
+                          f"x{data:.1f}; fit best of {row['fit_n']}, "
                           "diagnose once)",
                f"fit {row['fit_s']:.2f} s (x{rf:.1f}), diagnose {row['diagnose_s']:.2f} s (x{rd:.1f})",
                "time grows ≤ 1.3x the run length", max(rf, rd) <= 1.3 * row["factor"])
