@@ -342,6 +342,18 @@ def _cmd_live(args) -> int:
                 diagnose=not args.no_diagnose)
 
 
+def _cmd_serve(args) -> int:
+    from stid import serve
+
+    if args.stop:
+        return serve.stop_server()
+    if not args.idle > 0:
+        from stid.errors import InputError
+
+        raise InputError(f"--idle {args.idle:g}: give the minutes without a command after which the server stops (> 0)")
+    return serve.serve(idle_s=args.idle * 60)
+
+
 def _cmd_repair(args) -> int:
     from host.repair import repair_cli
 
@@ -502,6 +514,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an existing -o file")
     p.set_defaults(func=_cmd_calibrate)
 
+    p = sub.add_parser("serve", help="keep stid loaded: commands run meanwhile start in ~0.1 s instead of ~0.9 s")
+    p.add_argument("--idle", type=float, default=30.0, metavar="MIN",
+                   help="stop after this many minutes without a command (default 30)")
+    p.add_argument("--stop", action="store_true", help="stop this user's running servers")
+    p.set_defaults(func=_cmd_serve)
+
     p = sub.add_parser("repair", help="rewrite a cut-short or damaged log into a complete one (what fails its "
                                       "checks is left out and named)")
     p.add_argument("file")
@@ -517,6 +535,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """The console command: in a warm server when one of this code runs (stid.serve), else here."""
+    if argv is None:
+        from stid.serve import run_in_server
+
+        rc = run_in_server(sys.argv[1:])
+        if rc is not None:
+            return rc
+    return main_here(argv)
+
+
+def main_here(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         rc = args.func(args)

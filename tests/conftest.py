@@ -3,6 +3,9 @@ import os
 # one BLAS thread in every test process and the tools it starts (see stid/__init__.py)
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# every command a test runs runs cold, here: a developer's warm server (stid serve) is not the code
+# under test's concern (tests/test_serve.py starts its own)
+os.environ["STID_NO_SERVER"] = "1"
 import subprocess
 import sys
 from pathlib import Path

@@ -1,0 +1,189 @@
+"""stid serve: commands run in a warm server say, print and exit exactly as they do alone; only a
+server of the same code takes them; Ctrl-C and a killed client reach the command; nothing is
+left running. Whole processes, as a user runs them (the console script `stid`)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import REPO, tool
+from tests.simdata import sim_run
+
+STID = tool("stid")
+VEHICLE = REPO / "docs" / "examples" / "rc8.toml"
+pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="Unix sockets with SCM_RIGHTS, /proc")
+
+
+def _env(serve_dir: str, **more) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "STID_NO_SERVER"}  # (conftest's: every other test runs cold)
+    env["STID_SERVE_DIR"] = serve_dir
+    env.update(more)
+    return env
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for p in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{p}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(p))
+    return out
+
+
+class Server:
+    def __init__(self, serve_dir: str):
+        self.dir = serve_dir
+        self.log = Path(serve_dir + ".log")
+        self.proc = subprocess.Popen([STID, "serve", "--idle", "5"], env=_env(serve_dir), stdout=subprocess.DEVNULL,
+                                     stderr=self.log.open("w"))
+        deadline = time.monotonic() + 60
+        while "ready" not in self.log.read_text():
+            assert self.proc.poll() is None, self.log.read_text()
+            assert time.monotonic() < deadline, "stid serve did not get ready in 60 s"
+            time.sleep(0.1)
+
+    def served(self) -> list[str]:
+        return [ln for ln in self.log.read_text().splitlines() if " ended with " in ln]
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            self.proc.wait(timeout=20)
+
+
+@pytest.fixture(scope="module")
+def server():
+    d = tempfile.mkdtemp(prefix="stid-serve-", dir="/tmp")  # short: a Unix socket's path has ~100 bytes
+    s = Server(os.path.join(d, "s"))
+    yield s
+    s.stop()
+    assert not _children(s.proc.pid)
+
+
+@pytest.fixture(scope="module")
+def run_file(tmp_path_factory):
+    return sim_run(tmp_path_factory.mktemp("serve"), effects=("actuator_lag",), duration=20.0)
+
+
+def _stid(args, serve_dir, cwd=None, **env):
+    return subprocess.run([STID, *map(str, args)], env=_env(serve_dir, **env), cwd=cwd, capture_output=True,
+                          text=True, timeout=300)
+
+
+def test_a_served_command_prints_and_exits_as_it_does_alone(server, run_file, tmp_path):
+    """The same bytes on stdout and stderr and the same exit status, warm and cold; a relative
+    path is read from the client's directory and a written file gets the client's umask."""
+    before = len(server.served())
+    args = ["diagnose", run_file.name, "--vehicle", VEHICLE, "--json"]
+    warm = _stid(args, server.dir, cwd=run_file.parent)
+    assert len(server.served()) == before + 1, "the command did not run in the server"
+    cold = _stid(args, server.dir, cwd=run_file.parent, STID_NO_SERVER="1")
+    assert len(server.served()) == before + 1
+    assert (warm.returncode, warm.stdout, warm.stderr) == (cold.returncode, cold.stdout, cold.stderr)
+    assert warm.returncode == 0 and '"candidates"' in warm.stdout
+
+    out = tmp_path / "run.csv"
+    old = os.umask(0o077)
+    try:
+        r = subprocess.run([STID, "export", run_file, "--csv", out], env=_env(server.dir), capture_output=True,
+                           text=True, timeout=120)
+    finally:
+        os.umask(old)
+    assert r.returncode == 0, r.stderr
+    assert len(server.served()) == before + 2
+    assert out.stat().st_mode & 0o777 == 0o600  # the client's umask, not the server's
+
+
+def test_a_user_error_is_one_line_and_exit_2_warm_as_cold(server, run_file):
+    before = len(server.served())
+    for args in (["fit", "missing.mcap", "--vehicle", VEHICLE],
+                 ["fit", run_file, "--vehicle", VEHICLE, "--model", "bicycle+actuator_lagg"],
+                 ["diagnose", run_file],  # argparse's usage error: exit 2 with the usage
+                 ["fit", run_file, "--vehicle", VEHICLE, "--method", "nope"]):
+        warm, cold = _stid(args, server.dir), _stid(args, server.dir, STID_NO_SERVER="1")
+        assert (warm.returncode, warm.stdout, warm.stderr) == (cold.returncode, cold.stdout, cold.stderr), args
+        assert warm.returncode == 2 and "Traceback" not in warm.stderr
+    assert len(server.served()) == before + 4
+
+
+def test_only_a_server_of_the_same_code_and_environment_takes_a_command(server, run_file):
+    before = len(server.served())
+    r = _stid(["fit", run_file, "--vehicle", VEHICLE, "--json"], server.dir, NUMBA_OPT="2")  # read at import
+    assert r.returncode == 0, r.stderr
+    assert len(server.served()) == before, "a server imported with another NUMBA_ setting ran the command"
+    r = _stid(["fit", run_file, "--vehicle", VEHICLE, "--json"], server.dir, STID_NO_SERVER="1")
+    assert r.returncode == 0 and len(server.served()) == before
+    r = _stid(["--help"], server.dir)
+    assert r.returncode == 0 and len(server.served()) == before
+
+
+def test_ctrl_c_and_a_killed_client_end_the_command_and_its_workers(server, run_file):
+    long_run = sim_run(run_file.parent, effects=("actuator_lag", "accel_offset"), duration=60.0, seed=3)
+    for how in ("sigint", "kill"):
+        before = len(server.served())
+        p = subprocess.Popen([STID, "diagnose", long_run, "--vehicle", VEHICLE, "--peel"], env=_env(server.dir),
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 30
+        while not _children(server.proc.pid):  # the command's supervisor is forked
+            assert time.monotonic() < deadline and p.poll() is None
+            time.sleep(0.05)
+        time.sleep(0.5)  # into the fits (the worker pool is running)
+        p.send_signal(signal.SIGINT) if how == "sigint" else p.kill()
+        out, err = p.communicate(timeout=60)
+        if how == "sigint":
+            assert p.returncode == 130 and err.strip().endswith("interrupted"), (p.returncode, err)
+        deadline = time.monotonic() + 20
+        while _children(server.proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _children(server.proc.pid), "the interrupted command (or its workers) still runs"
+        assert server.served()[before:] and server.served()[-1].split(" ended with ")[1].startswith("130"), how
+
+
+def test_a_stale_socket_is_passed_by_and_a_second_server_refused(server, run_file, tmp_path):
+    d = tempfile.mkdtemp(prefix="stid-stale-", dir="/tmp")
+    os.chmod(d, 0o700)
+    stale = _stid(["serve", "--stop"], d)  # nothing running: says so, exit 0
+    assert stale.returncode == 0 and "no server" in stale.stderr
+    # a socket file whose server was killed (-9): connect is refused, the command runs here
+    fp = subprocess.run([sys.executable, "-c", "from stid.serve import fingerprint; print(fingerprint())"],
+                        env=_env(d), capture_output=True, text=True, cwd=tmp_path).stdout.strip()
+    import socket
+
+    s = socket.socket(socket.AF_UNIX)
+    s.bind(os.path.join(d, f"serve-{fp}.sock"))
+    s.close()
+    r = _stid(["fit", run_file, "--vehicle", VEHICLE, "--json"], d)
+    assert r.returncode == 0 and '"params"' in r.stdout, r.stderr
+
+    second = _stid(["serve"], server.dir)
+    assert second.returncode == 2 and second.stderr.count("\n") == 1 and "already running" in second.stderr
+
+
+def test_a_directory_others_may_enter_is_refused(tmp_path):
+    d = tempfile.mkdtemp(prefix="stid-open-", dir="/tmp")
+    os.chmod(d, 0o755)
+    r = _stid(["serve"], d)
+    assert r.returncode == 2 and "mode 700" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_stop_ends_every_server_of_this_user(tmp_path):
+    s = Server(os.path.join(tempfile.mkdtemp(prefix="stid-stop-", dir="/tmp"), "s"))
+    try:
+        r = _stid(["serve", "--stop"], s.dir)
+        assert r.returncode == 0 and "stopped 1 server" in r.stderr
+        s.proc.wait(timeout=20)
+        assert not [n for n in os.listdir(s.dir) if n.endswith(".sock")]
+    finally:
+        s.stop()
