@@ -19,6 +19,8 @@ The socket lives in a directory only its user can enter (``$XDG_RUNTIME_DIR/stid
 ``/tmp/stid-UID``; ``STID_SERVE_DIR`` overrides it), and the server checks the peer's user
 id on Linux. ``STID_NO_SERVER=1`` makes a command run cold whatever is running.
 
+The command gets the client's priority (``nice``), not its resource limits (``ulimit``).
+
 Process layout per command: the server accepts and reads the request, then forks a
 *supervisor*, which forks the *runner* (the command) and relays: Ctrl-C (and SIGTERM, SIGHUP)
 from the client to the runner, the runner's exit status back, and a client that went away
@@ -171,8 +173,8 @@ def run_in_server(argv: list[str]) -> int | None:
         sock.connect(path)
         umask = os.umask(0o022)
         os.umask(umask)
-        _send_msg(sock, {"argv": argv, "cwd": os.getcwd(), "env": dict(os.environ), "umask": umask},
-                  fds=(0, 1, 2))
+        _send_msg(sock, {"argv": argv, "cwd": os.getcwd(), "env": dict(os.environ), "umask": umask,
+                         "nice": os.getpriority(os.PRIO_PROCESS, 0)}, fds=(0, 1, 2))
     except OSError:  # a server that has gone (a stale socket) or is going: run here
         sock.close()
         return None
@@ -409,6 +411,10 @@ def _run(doc: dict, fds: list[int]) -> None:
         os.environ.clear()
         os.environ.update(doc["env"])
         os.umask(int(doc["umask"]))
+        try:  # the client's priority (stid live runs its background diagnosis niced below the logger)
+            os.setpriority(os.PRIO_PROCESS, 0, int(doc["nice"]))
+        except OSError:  # (above the server's own priority needs privileges: then the server's)
+            pass
         sys.argv = ["stid", *doc["argv"]]
         from stid.cli import main_here
 

@@ -129,17 +129,27 @@ def test_only_a_server_of_the_same_code_and_environment_takes_a_command(server, 
     assert r.returncode == 0 and len(server.served()) == before
 
 
+def _nice(pid: int) -> int:
+    with open(f"/proc/{pid}/stat") as f:
+        return int(f.read().rsplit(")", 1)[1].split()[16])
+
+
 def test_ctrl_c_and_a_killed_client_end_the_command_and_its_workers(server, run_file):
+    """And the command runs at the client's priority (stid live niced its background diagnosis
+    below the logger: in the server it must stay there)."""
     long_run = sim_run(run_file.parent, effects=("actuator_lag", "accel_offset"), duration=60.0, seed=3)
     for how in ("sigint", "kill"):
         before = len(server.served())
         p = subprocess.Popen([STID, "diagnose", long_run, "--vehicle", VEHICLE, "--peel"], env=_env(server.dir),
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: os.nice(15) if how == "sigint" else None)
         deadline = time.monotonic() + 30
-        while not _children(server.proc.pid):  # the command's supervisor is forked
+        while not [r for s in _children(server.proc.pid) for r in _children(s)]:  # supervisor, then runner
             assert time.monotonic() < deadline and p.poll() is None
             time.sleep(0.05)
         time.sleep(0.5)  # into the fits (the worker pool is running)
+        runner = [r for s in _children(server.proc.pid) for r in _children(s)][0]
+        assert _nice(runner) == (15 if how == "sigint" else _nice(server.proc.pid))
         p.send_signal(signal.SIGINT) if how == "sigint" else p.kill()
         out, err = p.communicate(timeout=60)
         if how == "sigint":
