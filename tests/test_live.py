@@ -578,6 +578,26 @@ def test_the_diagnosis_line_from_stid_diagnose_json_as_documented():
     assert verdict("stid diagnose: error: ...", 30) is None
 
 
+def test_the_diagnosis_line_says_when_the_named_model_is_still_short_of_the_noise_floor():
+    """The demo's 6 m/s run alone names a servo lag of 39 ms (the car's is 60: its accelerometer's
+    offset, not yet found, bends it), and the named model stays 2-3 points short of the floor. The
+    line said "actuator_lag likely: tau_steer 39 ms" and nothing else; within chance of the floor
+    it says nothing more."""
+    from stid.live.diagnosis import verdict
+
+    doc = {"model": "bicycle", "named": ["actuator_lag"], "noise_floor_stderr": {"ay": 0.025, "r": 0.025},
+           "candidates": [{"effect": "actuator_lag", "significant": True, "params": {"tau_steer": 0.0393},
+                           "units": {"tau_steer": "s"}}],
+           "unexplained": {"significant": False, "model": "bicycle+actuator_lag", "gap": {"ay": 2.35, "r": 3.21}}}
+    text = verdict(json.dumps(doc), 23)
+    assert text.startswith("diagnosis: actuator_lag likely: tau_steer 39 ms; with it still ay 2.4, r 3.2 points "
+                           "short of the noise floor: something more is missing") and text.endswith("23 s of driving)")
+    doc["unexplained"]["gap"] = {"ay": 0.3, "r": 0.05}  # within MIN_GAP: at the floor
+    assert verdict(json.dumps(doc), 23) == "diagnosis: actuator_lag likely: tau_steer 39 ms (stid diagnose, 23 s of driving)"
+    doc["unexplained"]["gap"], doc["noise_floor_stderr"] = {"ay": 0.9, "r": 0.0}, {"ay": 0.5, "r": 0.025}
+    assert "short of" not in verdict(json.dumps(doc), 23)  # 0.9 points is within 2.6 se of a short run's floor
+
+
 def test_a_growing_log_reread_with_its_chunks_remembered_reads_as_a_fresh_read(tmp_path):
     """stid live keeps what a log's chunks held between reads (they never change once
     written): each read of the growing file equals a fresh read of it, samples, messages and
