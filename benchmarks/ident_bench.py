@@ -3,8 +3,11 @@ scaling with run length and with the number of candidate effects."""
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -57,7 +60,7 @@ def _best_of(fn, n=3):
     return min(times), out
 
 
-def whole_process(cmd) -> tuple:
+def whole_process(cmd, env=None) -> tuple:
     """(wall, cpu) seconds of a whole command, as `time` shows them: the user pays the
     imports too. CPU (user + sys of the child and its workers) is what a busy machine does
     not inflate."""
@@ -65,7 +68,7 @@ def whole_process(cmd) -> tuple:
 
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, capture_output=True)
+    subprocess.run(cmd, check=True, capture_output=True, env=env)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -183,7 +186,9 @@ def glance_times(d: Path, quick: bool) -> dict:
     --fast`` as the simulated car's logger would have): ``stid --help``; ``stid diagnose``
     one round and ``--peel`` on the demo's two track runs (servo lag and an accelerometer
     ahead of the CG hidden, the vehicle file from ``stid calibrate`` as the demo makes it);
-    ``--peel`` on a 60 s track log at 100 Hz with a servo lag and a locked differential."""
+    ``--peel`` on a 60 s track log at 100 Hz with a servo lag and a locked differential. Each
+    cold (the whole command loads everything) and warm (``stid serve`` running: the command
+    runs in a fork of a loaded process, docs/measurements.md)."""
     from hil_sim.demo import DRIVES, HIDDEN
 
     bindir = Path(sys.executable).parent
@@ -208,11 +213,30 @@ def glance_times(d: Path, quick: bool) -> dict:
     demo = [str(files["track_4ms"]), str(files["track_6ms"])]
     n = 1 if quick else 5
 
-    def median(cmd, k=n):
-        runs = sorted(whole_process(cmd) for _ in range(k))
+    def median(cmd, k=n, env=None):
+        runs = sorted(whole_process(cmd, env) for _ in range(k))
         return runs[len(runs) // 2]
 
-    return {"n": n, "help": median([stid, "--help"], 1 if quick else 7),
-            "one_round": median([stid, "diagnose", *demo, "--vehicle", str(car)]),
-            "peel": median([stid, "diagnose", *demo, "--vehicle", str(car), "--peel"]),
-            "pair_peel": median([stid, "diagnose", str(pair), "--vehicle", str(VEHICLE), "--peel"])}
+    one = [stid, "diagnose", *demo, "--vehicle", str(car)]
+    pair_peel = [stid, "diagnose", str(pair), "--vehicle", str(VEHICLE), "--peel"]
+    out = {"n": n, "help": median([stid, "--help"], 1 if quick else 7), "one_round": median(one),
+           "peel": median([*one, "--peel"]), "pair_peel": median(pair_peel)}
+    serve_dir = tempfile.mkdtemp(prefix="stid-bench-serve-", dir="/tmp")  # (a socket's path is short)
+    env = {k: v for k, v in os.environ.items() if k != "STID_NO_SERVER"}
+    env["STID_SERVE_DIR"] = serve_dir
+    log = Path(serve_dir) / "serve.log"
+    server = subprocess.Popen([stid, "serve", "--idle", "10"], env=env, stdout=subprocess.DEVNULL,
+                              stderr=log.open("w"))
+    try:
+        while "ready" not in log.read_text():
+            if server.poll() is not None:
+                raise RuntimeError(f"stid serve did not start: {log.read_text()}")
+            time.sleep(0.1)
+        for key, cmd in (("warm_one_round", one), ("warm_peel", [*one, "--peel"]), ("warm_pair_peel", pair_peel)):
+            whole_process(cmd, env)  # (the first after the start pays for the server's first fork)
+            out[key] = median(cmd, env=env)[0]
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+        shutil.rmtree(serve_dir, ignore_errors=True)
+    return out
