@@ -40,10 +40,10 @@ import time
 # Commands that compute (and so gain ~0.8 s warm). Not `live` (long-running, its own threads and
 # web server), `flash` (mpremote does the work), `repair` (a few file operations).
 SERVED = frozenset({"fit", "diagnose", "compare", "report", "plan", "calibrate", "batch", "export"})
-# Environment variables a module reads when it is imported: a server imported with other values
-# than a command's would compute differently (threads, numba's options, an effect file's path is
-# read per command and needs no part here)
-IMPORT_TIME_ENV = ("PYTHON", "NUMBA_", "OPENBLAS_", "OMP_", "MKL_", "MPL", "NUMPY_", "SCIPY_")
+# Environment variables read when a module is imported or Python starts: a server started with
+# other values than a command's would compute or print differently (threads, numba's options, the
+# locale's encoding). An effect file's path (STID_EFFECTS) is read per command and needs no part here
+IMPORT_TIME_ENV = ("PYTHON", "NUMBA_", "OPENBLAS_", "OMP_", "MKL_", "MPL", "NUMPY_", "SCIPY_", "LANG", "LC_")
 DEFAULT_IDLE_S = 30 * 60
 FORWARDED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 # Modules the served commands import: loaded once in the server, shared by every runner
@@ -410,6 +410,7 @@ def _run(doc: dict, fds: list[int]) -> None:
         os.chdir(doc["cwd"])
         os.environ.clear()
         os.environ.update(doc["env"])
+        time.tzset()  # (the local time zone is read from TZ at start-up, and now)
         os.umask(int(doc["umask"]))
         try:  # the client's priority (stid live runs its background diagnosis niced below the logger)
             os.setpriority(os.PRIO_PROCESS, 0, int(doc["nice"]))

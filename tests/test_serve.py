@@ -118,6 +118,22 @@ def test_a_user_error_is_one_line_and_exit_2_warm_as_cold(server, run_file):
     assert len(server.served()) == before + 4
 
 
+def test_a_users_effect_file_is_read_by_each_command_not_by_the_server(server, run_file, tmp_path):
+    """STID_EFFECTS is the command's: the server never loads the catalogue, so an effect file a
+    user has just written (or broken) is the one a served command uses."""
+    mine = tmp_path / "my_effect.py"
+    mine.write_text((REPO / "docs" / "examples" / "accel_scale.py").read_text())
+    args = ["fit", run_file, "--vehicle", VEHICLE, "--model", "bicycle+accel_scale", "--json"]
+    before = len(server.served())
+    warm, cold = (_stid(args, server.dir, STID_EFFECTS=str(mine), **more) for more in ({}, {"STID_NO_SERVER": "1"}))
+    assert warm.returncode == 0 and (warm.stdout, warm.stderr) == (cold.stdout, cold.stderr)
+    mine.write_text("this is not python\n")
+    warm, cold = (_stid(args, server.dir, STID_EFFECTS=str(mine), **more) for more in ({}, {"STID_NO_SERVER": "1"}))
+    assert warm.returncode == 2 and "my_effect.py failed to load" in warm.stderr
+    assert (warm.returncode, warm.stderr) == (cold.returncode, cold.stderr)
+    assert len(server.served()) == before + 2
+
+
 def test_only_a_server_of_the_same_code_and_environment_takes_a_command(server, run_file):
     before = len(server.served())
     r = _stid(["fit", run_file, "--vehicle", VEHICLE, "--json"], server.dir, NUMBA_OPT="2")  # read at import
