@@ -351,7 +351,7 @@ def _cmd_serve(args) -> int:
         from stid.errors import InputError
 
         raise InputError(f"--idle {args.idle:g}: give the minutes without a command after which the server stops (> 0)")
-    return serve.serve(idle_s=args.idle * 60)
+    return serve.serve(main_here, idle_s=args.idle * 60)
 
 
 def _cmd_repair(args) -> int:

@@ -207,10 +207,11 @@ def run_in_server(argv: list[str]) -> int | None:
 # ---------------------------------------------------------------- the server
 
 
-def serve(idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
-    """``stid serve``: load, then run the commands of this user's shells until ``idle_s``
-    without one, SIGINT or SIGTERM, or ``stid serve --stop``. Logs one line per command on
-    ``out`` (default stderr)."""
+def serve(command, idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
+    """``stid serve``: load, then run the commands of this user's shells (``command(argv) ->
+    exit status``, the stid command's own entry: stid.cli.main_here) until ``idle_s`` without
+    one, SIGINT or SIGTERM, or ``stid serve --stop``. Logs one line per command on ``out``
+    (default stderr)."""
     from stid.errors import InputError
 
     out = out or sys.stderr
@@ -257,7 +258,7 @@ def serve(idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
                     break
                 continue
             last = time.monotonic()
-            if _take(conn, out):
+            if _take(conn, out, command):
                 print("stid serve: stopped (stid serve --stop)", file=out, flush=True)
                 break
         else:
@@ -321,7 +322,7 @@ def _preload() -> None:
     gc.freeze()
 
 
-def _take(conn: socket.socket, out) -> bool:
+def _take(conn: socket.socket, out, command) -> bool:
     """Read one request and hand it to a supervisor; True for a stop request."""
     fds: list[int] = []
     try:
@@ -340,7 +341,7 @@ def _take(conn: socket.socket, out) -> bool:
         print(f"stid serve: {' '.join(doc['argv'])[:160]}", file=out, flush=True)
         if os.fork() == 0:
             try:
-                _supervise(conn, doc, fds, out)
+                _supervise(conn, doc, fds, out, command)
             finally:
                 os._exit(0)
         return False
@@ -352,7 +353,7 @@ def _take(conn: socket.socket, out) -> bool:
         conn.close()
 
 
-def _supervise(conn: socket.socket, doc: dict, fds: list[int], out) -> None:
+def _supervise(conn: socket.socket, doc: dict, fds: list[int], out, command) -> None:
     """Run the command in a runner forked from here; relay signals to it and its status back."""
     import threading
 
@@ -362,7 +363,7 @@ def _supervise(conn: socket.socket, doc: dict, fds: list[int], out) -> None:
     t0 = time.monotonic()
     pid = os.fork()
     if pid == 0:
-        _run(doc, fds)  # never returns
+        _run(doc, fds, command)  # never returns
     for fd in fds:
         os.close(fd)
     fds.clear()
@@ -392,7 +393,7 @@ def _supervise(conn: socket.socket, doc: dict, fds: list[int], out) -> None:
         pass
 
 
-def _run(doc: dict, fds: list[int]) -> None:
+def _run(doc: dict, fds: list[int], command) -> None:
     """The runner: become the client's command (its terminal, directory, environment, umask)."""
     rc = 1
     try:
@@ -417,10 +418,8 @@ def _run(doc: dict, fds: list[int]) -> None:
         except OSError:  # (above the server's own priority needs privileges: then the server's)
             pass
         sys.argv = ["stid", *doc["argv"]]
-        from stid.cli import main_here
-
         try:
-            rc = main_here(doc["argv"]) or 0
+            rc = command(doc["argv"]) or 0
         except SystemExit as e:  # argparse's usage errors, --help
             rc = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
             if not isinstance(e.code, (int, type(None))):
