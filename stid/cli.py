@@ -536,7 +536,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """The console command: in a warm server when one of this code runs (stid.serve), else here."""
-    if argv is None:
+    if argv is None and len(sys.argv) > 1 and not sys.argv[1].startswith("-"):  # (not `stid --help`: at once)
         from stid.serve import run_in_server
 
         rc = run_in_server(sys.argv[1:])

@@ -169,23 +169,35 @@ def run_in_server(argv: list[str]) -> int | None:
     if not os.path.exists(path):
         return None
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    try:
-        sock.connect(path)
-        umask = os.umask(0o022)
-        os.umask(umask)
-        _send_msg(sock, {"argv": argv, "cwd": os.getcwd(), "env": dict(os.environ), "umask": umask,
-                         "nice": os.getpriority(os.PRIO_PROCESS, 0)}, fds=(0, 1, 2))
-    except OSError:  # a server that has gone (a stale socket) or is going: run here
-        sock.close()
-        return None
+    sent, pending = [], []
 
     def forward(signum, _frame):
+        if not sent:  # (a Ctrl-C while the request is on its way: forwarded once it has gone)
+            pending.append(signum)
+            return
         try:
             _send_msg(sock, {"signal": int(signum)})
         except OSError:
             pass
 
     old = {s: signal.signal(s, forward) for s in FORWARDED_SIGNALS}
+    try:
+        sock.connect(path)
+        umask = os.umask(0o022)
+        os.umask(umask)
+        _send_msg(sock, {"argv": argv, "cwd": os.getcwd(), "env": dict(os.environ), "umask": umask,
+                         "nice": os.getpriority(os.PRIO_PROCESS, 0)}, fds=(0, 1, 2))
+        sent.append(True)
+    except OSError:  # a server that has gone (a stale socket) or is going: run here
+        for s, h in old.items():
+            signal.signal(s, h)
+        sock.close()
+        if pending:  # the user stopped it before it started
+            print("interrupted", file=sys.stderr)
+            return 130
+        return None
+    for signum in pending:
+        forward(signum, None)
     try:
         while True:
             try:
