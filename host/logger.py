@@ -46,6 +46,15 @@ EXIT_OTHER_BOARD = 6
 IDENTIFY_S = 3.0  # after a replug, wait this long for a HELLO (sent every 1-2 s) to tell the board
 
 
+
+def _gone_in_words(why: str) -> str:
+    """pyserial's words for a port that closed under it, as a person says them (the file's
+    'disconnect' event keeps pyserial's own)."""
+    if "returned no data" in why or "Errno 5]" in why or "Input/output error" in why:
+        return "it closed: unplugged, or the car or simulator on it ended"
+    return why
+
+
 class PortError(HostError):
     pass
 
@@ -388,8 +397,8 @@ class Logger:
         wait = (f"at most {o.reconnect_timeout:g} s" if o.reconnect_timeout is not None
                 else "until it comes back (--reconnect-timeout to limit; Ctrl-C ends the log)")
         # (the file has its 'disconnect' event already: this is for the person only)
-        self._say(f"warning: {o.port} went away ({why}); {self.path} is complete up to here; waiting {wait} "
-                  "for the same board")
+        self._say(f"warning: {o.port} went away ({_gone_in_words(why)}); {self.path} is complete up to here; "
+                  f"waiting {wait} for the same board")
         while self.stop_reason is None:
             waited = time.monotonic() - t_lost
             if o.duration is not None and time.monotonic() - self.t0 >= o.duration:

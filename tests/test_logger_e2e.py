@@ -172,6 +172,10 @@ def test_unplug_and_replug_resumes_in_the_same_file(tmp_path):
     assert 0.5 < t_gap < 3.0
     # said live, also when stderr is not a terminal (it printed nothing while it waited)
     assert "went away" in err and "is complete up to here" in err and "is back after" in err, err
+    # in words (pyserial's own, "device reports readiness to read but returned no data", stays in the file)
+    assert "went away (it closed: unplugged" in err and "readiness" not in err, err
+    assert any("readiness" in e[1].get("detail", "") or "Errno" in e[1].get("detail", "") for e in log.events
+               if e[1]["event"] == "disconnect"), log.events
 
 
 def test_an_unplugged_car_takes_its_link_away_as_udev_does(tmp_path):
