@@ -485,6 +485,7 @@ def test_terminal_redraws_in_place_and_keeps_messages_above_and_piped_is_plain_l
     tv = TerminalView(piped, tty=False)
     tv.show(_update())
     assert "\x1b" not in piped.getvalue()
+    tv.message("stid-log: warning: the port went away")  # stamped as the updates: seconds of data, not a clock
     assert all(line.startswith("[  12.0 s]") for line in piped.getvalue().splitlines())
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import shutil
 import sys
 import textwrap
-import time
 
 from stid.live.estimator import Update
 
@@ -82,7 +81,10 @@ class TerminalView:
                 self.show(self._last)
                 return
         else:
-            self.stream.write(f"[{time.strftime('%H:%M:%S')}] {text}\n")
+            # stamped as the updates are, in seconds of data (of the last update: the line came after
+            # it): a clock time among them read as another kind of number
+            seconds = self._last.seconds if self._last is not None else 0.0
+            self.stream.write(f"[{seconds:6.1f} s] {text}\n")
         self.stream.flush()
 
     def _erase(self) -> None:
