@@ -32,7 +32,7 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
     # slower than alone (a command gained 5-10%); stid's matrices are a few columns wide, where
     # BLAS threads add nothing (a fit of 330,000 samples: the same wall time, half the CPU).
     limit = threadpool_limits(limits=1, user_api="blas")
-    ex = ProcessPoolExecutor(max_workers=workers, initializer=_leave_interrupts_to_the_command)
+    ex = ProcessPoolExecutor(max_workers=workers, initializer=_start_worker, initargs=(os.getpid(),))
     try:
         yield ex
     finally:
@@ -55,6 +55,30 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
             ex.shutdown(wait=True, cancel_futures=True)
         finally:
             limit.restore_original_limits()
+
+
+def _start_worker(command_pid: int) -> None:
+    _leave_interrupts_to_the_command()
+    _end_with_the_command(command_pid)
+
+
+def _end_with_the_command(command_pid: int) -> None:
+    """A command killed outright (SIGKILL, the OOM killer) cannot end its workers, and they
+    would wait for work for ever: each holds the job pipe's writing end too, so none reads an
+    end of file (seen: a served `stid report` whose server was killed left two). On Linux the
+    kernel ends a worker with its command (PR_SET_PDEATHSIG); elsewhere this does nothing."""
+    import signal
+
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, int(signal.SIGTERM), 0, 0, 0) != 0:  # PR_SET_PDEATHSIG = 1
+            return
+    except (OSError, AttributeError):  # not Linux
+        return
+    if os.getppid() != command_pid:  # the command was gone before the kernel was asked
+        os._exit(1)
 
 
 def _leave_interrupts_to_the_command():

@@ -89,3 +89,45 @@ def test_blas_runs_one_thread_per_process_while_workers_run_and_is_given_back_af
     assert out.returncode == 0, out.stderr
     got = json.loads(out.stdout)
     assert got == {"before": [2], "inside": [1], "worker": [1], "after": [2]}, got
+
+
+_KILLED = r"""
+import os, sys, time
+from stid.workers import worker_pool
+
+with worker_pool(2) as pool:
+    jobs = [pool.submit(time.sleep, 60) for _ in range(2)]
+    time.sleep(1.0)
+    print(" ".join(str(p) for p in pool._processes), flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_command_killed_outright_takes_its_workers_with_it():
+    """SIGKILL cannot be caught: the command's finally never runs. Its workers, waiting on a
+    pipe every one of them also holds open, lingered for ever (a served `stid report` whose
+    server was killed left two)."""
+    import os
+    import signal
+
+    p = subprocess.Popen([sys.executable, "-c", _KILLED], stdout=subprocess.PIPE, text=True)
+    workers = [int(w) for w in p.stdout.readline().split()]
+    assert len(workers) == 2
+    p.kill()
+    p.wait(timeout=10)
+    deadline = time.monotonic() + 10
+    alive = workers
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = []
+        for w in workers:
+            try:
+                os.kill(w, 0)
+                with open(f"/proc/{w}/stat") as f:
+                    if f.read().rsplit(")", 1)[1].split()[0] != "Z":
+                        alive.append(w)
+            except (ProcessLookupError, FileNotFoundError):
+                pass
+    for w in alive:
+        os.kill(w, signal.SIGKILL)
+    assert not alive, f"workers left running after their command was killed: {alive}"
