@@ -67,6 +67,10 @@ def _private_dir(d: str, create: bool) -> str | None:
     """``d`` if it is a directory of this user that no one else may enter (made so when
     ``create``), else None: a socket in a shared directory could be someone else's."""
     if create:
+        if os.path.exists(d) and not os.path.isdir(d):
+            from stid.errors import InputError
+
+            raise InputError(f"{d} is a file, not a directory: set STID_SERVE_DIR to a directory (or unset it)")
         os.makedirs(d, mode=0o700, exist_ok=True)
     try:
         st = os.stat(d)
@@ -162,6 +166,11 @@ def run_in_server(argv: list[str]) -> int | None:
         return None
     if any(a in ("-h", "--help", "--version") for a in argv):  # answered at once anyway
         return None
+    try:  # a closed stdin, stdout or stderr: its number would be the socket's, sent as the terminal
+        for fd in (0, 1, 2):
+            os.fstat(fd)
+    except OSError:
+        return None
     d = _private_dir(socket_dir(), create=False)
     if d is None:
         return None
@@ -169,47 +178,66 @@ def run_in_server(argv: list[str]) -> int | None:
     if not os.path.exists(path):
         return None
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    sent, pending = [], []
+    started, early = [], []
 
-    def forward(signum, _frame):
-        if not sent:  # (a Ctrl-C while the request is on its way: forwarded once it has gone)
-            pending.append(signum)
-            return
+    def tell(sig: int) -> None:
         try:
-            _send_msg(sock, {"signal": int(signum)})
+            _send_msg(sock, {"signal": int(sig)})
         except OSError:
             pass
 
+    def forward(signum, _frame):
+        if not started:  # not taken yet: a Ctrl-C ends the wait here
+            early.append(signum)
+            raise KeyboardInterrupt
+        tell(signum)
+
+    def suspend(_signum, _frame):
+        # Ctrl-Z: the command (and its workers) stop, then this process, as a shell expects; fg or
+        # bg continues both
+        if started:
+            tell(signal.SIGSTOP)
+        signal.signal(signal.SIGTSTP, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGTSTP)
+        signal.signal(signal.SIGTSTP, suspend)
+        if started:
+            tell(signal.SIGCONT)
+
     old = {s: signal.signal(s, forward) for s in FORWARDED_SIGNALS}
+    old[signal.SIGTSTP] = signal.signal(signal.SIGTSTP, suspend)
     try:
-        sock.connect(path)
-        umask = os.umask(0o022)
-        os.umask(umask)
-        _send_msg(sock, {"argv": argv, "cwd": os.getcwd(), "env": dict(os.environ), "umask": umask,
-                         "nice": os.getpriority(os.PRIO_PROCESS, 0)}, fds=(0, 1, 2))
-        sent.append(True)
-    except OSError:  # a server that has gone (a stale socket) or is going: run here
-        for s, h in old.items():
-            signal.signal(s, h)
-        sock.close()
-        if pending:  # the user stopped it before it started
-            print("interrupted", file=sys.stderr)
-            return 130
-        return None
-    for signum in pending:
-        forward(signum, None)
-    try:
+        try:
+            sock.connect(path)
+            umask = os.umask(0o022)
+            os.umask(umask)
+            _send_msg(sock, {"argv": argv, "cwd": os.getcwd(), "env": dict(os.environ), "umask": umask,
+                             "nice": os.getpriority(os.PRIO_PROCESS, 0)}, fds=(0, 1, 2))
+        except OSError:  # a server that has gone (a stale socket) or is going: run here
+            return None
+        sock.settimeout(5.0)
         while True:
             try:
                 doc, _ = _recv_msg(sock)
-            except InterruptedError:
+            except socket.timeout:  # a server that does not take it: say so, and wait on (Ctrl-C ends it)
+                print("stid: the warm server (stid serve) has not taken this command in 5 s; waiting (Ctrl-C "
+                      "stops; STID_NO_SERVER=1 runs commands without it)", file=sys.stderr, flush=True)
+                sock.settimeout(None)
                 continue
             if doc is None:
-                print("stid: error: the warm server (stid serve) ended while it ran this command; run it again "
-                      "(STID_NO_SERVER=1 runs it without the server)", file=sys.stderr)
+                print("stid: error: the warm server (stid serve) went away before this command's exit status came "
+                      "back (what it printed above is all there is); run it again (STID_NO_SERVER=1 runs it "
+                      "without the server)", file=sys.stderr)
                 return 1
+            if "started" in doc:
+                started.append(doc["started"])
+                sock.settimeout(None)
             if "exit" in doc:
                 return int(doc["exit"])
+    except KeyboardInterrupt:
+        if started or not early:
+            raise
+        print("interrupted", file=sys.stderr)  # (a server that takes it later sees the connection closed: ended)
+        return 130
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -270,7 +298,7 @@ def serve(command, idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
                     break
                 continue
             last = time.monotonic()
-            if _take(conn, out, command):
+            if _take(conn, out, command, listener):
                 print("stid serve: stopped (stid serve --stop)", file=out, flush=True)
                 break
         else:
@@ -334,7 +362,7 @@ def _preload() -> None:
     gc.freeze()
 
 
-def _take(conn: socket.socket, out, command) -> bool:
+def _take(conn: socket.socket, out, command, listener: socket.socket) -> bool:
     """Read one request and hand it to a supervisor; True for a stop request."""
     fds: list[int] = []
     try:
@@ -353,6 +381,9 @@ def _take(conn: socket.socket, out, command) -> bool:
         print(f"stid serve: {' '.join(doc['argv'])[:160]}", file=out, flush=True)
         if os.fork() == 0:
             try:
+                # (a command's processes that held the listening socket kept it answering after the
+                # server was gone: every later command waited there for ever)
+                listener.close()
                 _supervise(conn, doc, fds, out, command)
             finally:
                 os._exit(0)
@@ -376,9 +407,17 @@ def _supervise(conn: socket.socket, doc: dict, fds: list[int], out, command) -> 
     pid = os.fork()
     if pid == 0:
         _run(doc, fds, command)  # never returns
+    try:  # the runner and its workers in a group of their own, which Ctrl-Z stops as one (also in _run: no race)
+        os.setpgid(pid, pid)
+    except OSError:
+        pass
     for fd in fds:
         os.close(fd)
     fds.clear()
+    try:
+        _send_msg(conn, {"started": pid})
+    except OSError:
+        pass
 
     def relay():
         # the client's signals, and its end: gone without an answer (killed), its command is interrupted
@@ -387,10 +426,16 @@ def _supervise(conn: socket.socket, doc: dict, fds: list[int], out, command) -> 
                 msg, _ = _recv_msg(conn)
             except OSError:
                 msg = None
+            sig = signal.SIGINT if msg is None else int(msg.get("signal", signal.SIGINT))
             try:
-                os.kill(pid, signal.SIGINT if msg is None else int(msg.get("signal", signal.SIGINT)))
+                if sig in (signal.SIGSTOP, signal.SIGCONT):  # Ctrl-Z and fg/bg: the workers too
+                    os.killpg(pid, sig)
+                else:  # the rest to the command, which ends its workers itself
+                    os.kill(pid, sig)
             except ProcessLookupError:
                 return
+            except OSError:
+                pass
             if msg is None:
                 return
 
@@ -409,6 +454,10 @@ def _run(doc: dict, fds: list[int], command) -> None:
     """The runner: become the client's command (its terminal, directory, environment, umask)."""
     rc = 1
     try:
+        try:
+            os.setpgid(0, 0)
+        except OSError:
+            pass
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         signal.signal(signal.SIGHUP, signal.SIG_DFL)

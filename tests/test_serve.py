@@ -213,3 +213,80 @@ def test_stop_ends_every_server_of_this_user(tmp_path):
         assert not [n for n in os.listdir(s.dir) if n.endswith(".sock")]
     finally:
         s.stop()
+
+
+def _state(pid: int) -> str:
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()[0]
+
+
+def test_ctrl_z_stops_the_command_and_fg_continues_it(server, run_file):
+    """A shell's Ctrl-Z stops the command it runs: the client, and with it the served command
+    and its workers (they went on drawing over the prompt); fg continues all of them."""
+    long_run = sim_run(run_file.parent, effects=("actuator_lag", "accel_offset"), duration=60.0, seed=3)
+    p = subprocess.Popen([STID, "diagnose", long_run, "--vehicle", VEHICLE, "--peel", "--json"], env=_env(server.dir),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    while not [r for s in _children(server.proc.pid) for r in _children(s)]:
+        assert time.monotonic() < deadline and p.poll() is None
+        time.sleep(0.05)
+    time.sleep(0.5)
+    runner = [r for s in _children(server.proc.pid) for r in _children(s)][0]
+    group = [runner] + _children(runner)
+    p.send_signal(signal.SIGTSTP)
+    deadline = time.monotonic() + 10
+    while not all(_state(q) == "T" for q in group + [p.pid]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert [_state(q) for q in group + [p.pid]] == ["T"] * (len(group) + 1)
+    p.send_signal(signal.SIGCONT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 0 and '"steps"' in out, err
+
+
+def test_a_killed_server_leaves_no_socket_that_answers(server, run_file, tmp_path):
+    """Its commands' processes held the listening socket open: once the server was killed, a
+    command connected there and waited for ever (Ctrl-C did not end it). Now they do not hold it,
+    and a command runs cold; one whose server never takes it says so and ends on Ctrl-C."""
+    own = Server(os.path.join(tempfile.mkdtemp(prefix="stid-kill-", dir="/tmp"), "s"))
+    try:
+        p = subprocess.Popen([STID, "report", run_file, "--vehicle", VEHICLE, "-o", tmp_path / "rep"],
+                             env=_env(own.dir), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 30
+        while not [r for s in _children(own.proc.pid) for r in _children(s)]:
+            assert time.monotonic() < deadline and p.poll() is None
+            time.sleep(0.05)
+        own.proc.kill()
+        own.proc.wait()
+        r = _stid(["fit", run_file, "--vehicle", VEHICLE, "--json"], own.dir)  # no server: runs here
+        assert r.returncode == 0 and '"params"' in r.stdout, r.stderr
+        p.communicate(timeout=120)  # the command the server had taken still ends as it would
+        assert p.returncode == 0
+
+        # a server that is stopped (SIGSTOP) takes nothing: the command says so and Ctrl-C ends it
+        own2 = Server(own.dir)
+        os.kill(own2.proc.pid, signal.SIGSTOP)
+        try:
+            # (to files: the request waiting in the stopped server's socket holds the client's stdout and
+            # stderr open, and a pipe's reader would wait for their end until the server took it)
+            err_file = tmp_path / "err.txt"
+            with open(err_file, "w") as err_f:
+                q = subprocess.Popen([STID, "fit", run_file, "--vehicle", VEHICLE], env=_env(own.dir),
+                                     stdout=subprocess.DEVNULL, stderr=err_f)
+                time.sleep(6)
+                q.send_signal(signal.SIGINT)
+                q.wait(timeout=20)
+            err = err_file.read_text()
+            assert q.returncode == 130 and "has not taken this command in 5 s" in err and "Traceback" not in err
+        finally:
+            os.kill(own2.proc.pid, signal.SIGCONT)
+            own2.stop()
+    finally:
+        own.stop()
+
+
+def test_a_closed_stdout_runs_the_command_here_not_in_the_server(server, run_file):
+    before = len(server.served())
+    r = subprocess.run(f"{STID} fit {run_file} --vehicle {VEHICLE} --json >&-", shell=True, env=_env(server.dir),
+                       capture_output=True, text=True, timeout=120)
+    assert len(server.served()) == before
+    assert "Traceback" not in r.stderr, r.stderr
