@@ -424,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export", help="write a logged run as CSV in SI units (the import contract)")
     p.add_argument("run", help="RUN.mcap written by stid-log")
-    p.add_argument("--csv", required=True, help="output CSV path")
+    p.add_argument("--csv", required=True, help="output CSV path (- for stdout)")
     p.add_argument("--vehicle", help="vehicle TOML (steering and sensor calibration; default: datasheet values)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing CSV (never a recorded run)")
     p.set_defaults(func=_cmd_export)
@@ -531,6 +531,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     for p in sub.choices.values():
         p.add_argument("--version", action="version", version=f"stid {__version__}")
+    ap.commands = sub.choices
     return ap
 
 
@@ -546,10 +547,14 @@ def main(argv=None) -> int:
 
 
 def main_here(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args, extra = ap.parse_known_args(argv)
+    if extra:  # said by the command it was given to ("stid fit: error: ..."), with its usage
+        ap.commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         rc = args.func(args)
-        sys.stdout.flush()  # inside the try: a closed pipe shows here, not at interpreter exit
+        if sys.stdout is not None:  # (None: started with stdout closed, `>&-`; print() writes nothing then)
+            sys.stdout.flush()  # inside the try: a closed pipe shows here, not at interpreter exit
         # what is left lives until the process ends: frozen, it is spared the interpreter's
         # final garbage collections (0.15 s of every command once numba is loaded)
         gc.freeze()

@@ -98,3 +98,11 @@ def test_the_loggers_summary_says_why_it_stopped_in_words():
     assert "[" not in said["port gone"] and "went away (unplugged" in said["port gone"] and "did not come back" in said["port gone"]
     assert said["duration"].endswith("stopped after --duration")
     assert said["SIGINT"].endswith("stopped by Ctrl-C")
+
+
+def test_an_unknown_option_is_said_by_the_command_it_was_given_to(tmp_path):
+    """`stid fit ... --bogus` said "stid: error: unrecognized arguments" where every other
+    mistake of a command says "stid fit: error: ..." (with that command's usage)."""
+    r = _run("stid", "fit", tmp_path / "run.mcap", "--vehicle", tmp_path / "car.toml", "--bogus")
+    _check_one_clear_line(r, "stid fit: error: unrecognized arguments: --bogus")
+    assert "usage: stid fit" in r.stderr
