@@ -21,6 +21,7 @@ section CRC (written by ``McapLog``) covers them, and a mismatch is reported.
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -43,7 +44,11 @@ _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, com
 
 
 def holds_a_log(path) -> bool:
-    """Whether ``path`` is an MCAP file (a recorded run, which nothing of stid overwrites)."""
+    """Whether ``path`` is an MCAP file (a recorded run, which nothing of stid overwrites). Only a
+    regular file can be one: reading a pipe or a terminal to find out (``--csv /dev/stdout``)
+    waited for its writer, for ever."""
+    if not os.path.isfile(path):
+        return False
     try:
         with open(path, "rb") as f:
             return f.read(len(MAGIC)) == MAGIC

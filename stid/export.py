@@ -33,6 +33,9 @@ def write_csv(run, path) -> None:
 
 
 def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None, overwrite: bool = False) -> int:
+    """``csv_path`` "-": the CSV on stdout (a log in one piece)."""
+    if csv_path == "-":
+        return _export_to_stdout(run_path, vehicle_path)
     out = Path(csv_path)
     if not out.resolve().parent.exists():
         raise InputError(f"output directory {out.resolve().parent} does not exist")
@@ -55,15 +58,34 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None, ov
         written.append(p)
         for w in run.meta.get("warnings", []):
             print(f"warning: {run.name}: {w}", file=sys.stderr)
-    chain = runs[0].meta.get("sensor_chain")
+    _note_the_sensor_chain(runs[0])
+    note = "" if len(written) == 1 else (f" (the log had {len(written)} pieces, split where the stream "
+                                         "stopped for more than 0.1 s: an unplug, a restart or a burst of "
+                                         "lost frames; each piece's t starts at 0)")
+    print(f"wrote {', '.join(map(str, written))}{note}", file=sys.stderr)
+    return 0
+
+
+def _export_to_stdout(run_path: str, vehicle_path: str | None) -> int:
+    vehicle = load_vehicle(vehicle_path) if vehicle_path else None
+    runs = load_file(run_path, vehicle)
+    if not runs:
+        raise InputError(f"{run_path} holds no usable samples")
+    if len(runs) > 1:
+        raise InputError(f"{run_path} is a log of {len(runs)} pieces (split where the stream stopped for more than "
+                         "0.1 s), a CSV each: give --csv a file name (OUT.csv, OUT.2.csv, ... are written)")
+    write_csv(runs[0], sys.stdout)
+    for w in runs[0].meta.get("warnings", []):
+        print(f"warning: {runs[0].name}: {w}", file=sys.stderr)
+    _note_the_sensor_chain(runs[0])
+    return 0
+
+
+def _note_the_sensor_chain(run) -> None:
+    chain = run.meta.get("sensor_chain")
     if chain and (chain.get("ay") or chain.get("r")):
         keys = {"ay": "accel_bandwidth_hz", "r": "gyro_bandwidth_hz"}
         decl = ", ".join(f"{keys[o]} = {chain[o]:g}" for o in ("ay", "r") if chain.get(o))
         print(f"note: the CSV holds the sensors' outputs ({describe(chain)}); a CSV carries no sensor "
               f"chain, so declare it when fitting the CSV: [sensors] {decl} in the vehicle file",
               file=sys.stderr)
-    note = "" if len(written) == 1 else (f" (the log had {len(written)} pieces, split where the stream "
-                                         "stopped for more than 0.1 s: an unplug, a restart or a burst of "
-                                         "lost frames; each piece's t starts at 0)")
-    print(f"wrote {', '.join(map(str, written))}{note}", file=sys.stderr)
-    return 0

@@ -13,7 +13,8 @@ from stid.errors import InputError
 def refuse_existing(paths, what: str, overwrite: bool) -> None:
     """Refuse to replace files that exist unless ``overwrite``; ``what``: the command's words
     for them and the option that names another path (e.g. "export ... --csv")."""
-    there = [Path(p) for p in paths if Path(p).exists()]
+    # (a terminal, a pipe, /dev/stdout: written to, not replaced)
+    there = [Path(p) for p in paths if Path(p).exists() and not (Path(p).is_char_device() or Path(p).is_fifo())]
     if there and not overwrite:
         names = ", ".join(map(str, there))
         raise InputError(f"{names} exist{'s' if len(there) == 1 else ''}: {what} does not replace a file "

@@ -130,3 +130,20 @@ def test_the_speed_before_the_first_hall_interval_is_unknown_not_zero():
     # a wheel whose last edge was 5 s ago (a stand-still) is taken as standing, as before
     still = wheel_speed(t, t, np.full(len(t), 7), np.full(len(t), (-5_000_000) % (1 << 30)), 1, radius)
     assert (still == 0).all()
+
+
+def test_export_to_stdout_and_into_a_pipe(clean_run, tmp_path):
+    """`--csv -` is stdout; `--csv /dev/stdout` into a pipe waited for ever (the check that the
+    output is not a recorded run read the pipe) and a terminal or pipe was refused as a file
+    that exists. Neither writes a file named '-'."""
+    stid = tool("stid")
+    whole = tmp_path / "whole.csv"
+    r = subprocess.run([stid, "export", str(clean_run), "--csv", str(whole)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    for target in ("-", "/dev/stdout"):
+        r = subprocess.run(f"{stid} export {clean_run} --csv {target} | cat", shell=True, capture_output=True,
+                           text=True, timeout=120, cwd=tmp_path)
+        assert r.returncode == 0 and r.stdout == whole.read_text(), (target, r.stderr)
+        assert "Traceback" not in r.stderr
+    assert not (tmp_path / "-").exists()
