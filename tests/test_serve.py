@@ -216,8 +216,19 @@ def test_stop_ends_every_server_of_this_user(tmp_path):
 
 
 def _state(pid: int) -> str:
-    with open(f"/proc/{pid}/stat") as f:
-        return f.read().rsplit(")", 1)[1].split()[0]
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return "gone"
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except FileNotFoundError:
+        return "gone"
 
 
 def test_ctrl_z_stops_the_command_and_fg_continues_it(server, run_file):
@@ -232,12 +243,17 @@ def test_ctrl_z_stops_the_command_and_fg_continues_it(server, run_file):
         time.sleep(0.05)
     time.sleep(0.5)
     runner = [r for s in _children(server.proc.pid) for r in _children(s)][0]
-    group = [runner] + _children(runner)
     p.send_signal(signal.SIGTSTP)
     deadline = time.monotonic() + 10
-    while not all(_state(q) == "T" for q in group + [p.pid]) and time.monotonic() < deadline:
+
+    def states():  # the client, the command and every process it has now
+        return {q: _state(q) for q in [p.pid, runner] + _children(runner)}
+
+    while set(states().values()) != {"T"} and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert [_state(q) for q in group + [p.pid]] == ["T"] * (len(group) + 1)
+    seen = states()
+    assert set(seen.values()) == {"T"}, {q: (st, _cmdline(q)) for q, st in seen.items()}
+    assert len(seen) >= 3  # the client, the command, and its workers
     p.send_signal(signal.SIGCONT)
     out, err = p.communicate(timeout=120)
     assert p.returncode == 0 and '"steps"' in out, err
