@@ -129,23 +129,31 @@ def _send_msg(sock: socket.socket, doc: dict, fds=()) -> None:
         sock.sendall(frame)
 
 
-def _recv_msg(sock: socket.socket, max_fds: int = 0):
-    """(doc, fds) of one framed message, or (None, []) at end of stream."""
-    fds: list[int] = []
-    buf = b""
-    while len(buf) < 4 or len(buf) < 4 + struct.unpack("!I", buf[:4])[0]:
-        if max_fds and not fds:
-            chunk, got, _, _ = socket.recv_fds(sock, 65536, max_fds)
-            fds.extend(got)
-        else:
-            chunk = sock.recv(65536)
-        if not chunk:
-            for fd in fds:
-                os.close(fd)
-            return None, []
-        buf += chunk
-    n = struct.unpack("!I", buf[:4])[0]
-    return json.loads(buf[4:4 + n]), fds
+class _Messages:
+    """The framed messages arriving on one connection, in order. One read may bring more than one
+    (a quick command's 'started' and 'exit'; Ctrl-Z's stop and the continue that follows it at once
+    where the kernel discards the stop): what follows the first is kept for the next."""
+
+    def __init__(self, sock: socket.socket):
+        self.sock, self.buf = sock, b""
+
+    def next(self, max_fds: int = 0):
+        """(doc, fds) of the next message, or (None, []) at end of stream."""
+        fds: list[int] = []
+        while len(self.buf) < 4 or len(self.buf) < 4 + struct.unpack("!I", self.buf[:4])[0]:
+            if max_fds and not fds:
+                chunk, got, _, _ = socket.recv_fds(self.sock, 65536, max_fds)
+                fds.extend(got)
+            else:
+                chunk = self.sock.recv(65536)
+            if not chunk:
+                for fd in fds:
+                    os.close(fd)
+                return None, []
+            self.buf += chunk
+        n = struct.unpack("!I", self.buf[:4])[0]
+        doc, self.buf = json.loads(self.buf[4:4 + n]), self.buf[4 + n:]
+        return doc, fds
 
 
 def _peer_is_us(conn: socket.socket) -> bool:
@@ -178,6 +186,7 @@ def run_in_server(argv: list[str]) -> int | None:
     if not os.path.exists(path):
         return None
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    messages = _Messages(sock)
     started, early = [], []
 
     def tell(sig: int) -> None:
@@ -217,7 +226,7 @@ def run_in_server(argv: list[str]) -> int | None:
         sock.settimeout(5.0)
         while True:
             try:
-                doc, _ = _recv_msg(sock)
+                doc, _ = messages.next()
             except socket.timeout:  # a server that does not take it: say so, and wait on (Ctrl-C ends it)
                 print("stid: the warm server (stid serve) has not taken this command in 5 s; waiting (Ctrl-C "
                       "stops; STID_NO_SERVER=1 runs commands without it)", file=sys.stderr, flush=True)
@@ -328,7 +337,7 @@ def stop_server() -> int:
                 sock.settimeout(10)
                 sock.connect(path)
                 _send_msg(sock, {"stop": True})
-                _recv_msg(sock)
+                _Messages(sock).next()
             stopped += 1
         except OSError:
             pass
@@ -369,7 +378,8 @@ def _take(conn: socket.socket, out, command, listener: socket.socket) -> bool:
         conn.settimeout(5)  # a client sends its request at once
         if not _peer_is_us(conn):
             return False
-        doc, fds = _recv_msg(conn, max_fds=3)
+        messages = _Messages(conn)
+        doc, fds = messages.next(max_fds=3)
         if doc is None:
             return False
         if doc.get("stop"):
@@ -384,7 +394,7 @@ def _take(conn: socket.socket, out, command, listener: socket.socket) -> bool:
                 # (a command's processes that held the listening socket kept it answering after the
                 # server was gone: every later command waited there for ever)
                 listener.close()
-                _supervise(conn, doc, fds, out, command)
+                _supervise(conn, messages, doc, fds, out, command)
             finally:
                 os._exit(0)
         return False
@@ -396,7 +406,7 @@ def _take(conn: socket.socket, out, command, listener: socket.socket) -> bool:
         conn.close()
 
 
-def _supervise(conn: socket.socket, doc: dict, fds: list[int], out, command) -> None:
+def _supervise(conn: socket.socket, messages: _Messages, doc: dict, fds: list[int], out, command) -> None:
     """Run the command in a runner forked from here; relay signals to it and its status back."""
     import threading
 
@@ -423,8 +433,8 @@ def _supervise(conn: socket.socket, doc: dict, fds: list[int], out, command) -> 
         # the client's signals, and its end: gone without an answer (killed), its command is interrupted
         while True:
             try:
-                msg, _ = _recv_msg(conn)
-            except OSError:
+                msg, _ = messages.next()
+            except (OSError, ValueError):
                 msg = None
             sig = signal.SIGINT if msg is None else int(msg.get("signal", signal.SIGINT))
             try:

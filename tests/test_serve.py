@@ -235,8 +235,11 @@ def test_ctrl_z_stops_the_command_and_fg_continues_it(server, run_file):
     """A shell's Ctrl-Z stops the command it runs: the client, and with it the served command
     and its workers (they went on drawing over the prompt); fg continues all of them."""
     long_run = sim_run(run_file.parent, effects=("actuator_lag", "accel_offset"), duration=60.0, seed=3)
+    # a job of its own, as a shell starts it: in an orphaned process group (as pytest-xdist's worker's
+    # can be) the kernel discards a stop by SIGTSTP, and the client continues at once and its command
+    # with it (that path is the test below)
     p = subprocess.Popen([STID, "diagnose", long_run, "--vehicle", VEHICLE, "--peel", "--json"], env=_env(server.dir),
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, process_group=0)
     deadline = time.monotonic() + 30
     while not [r for s in _children(server.proc.pid) for r in _children(s)]:
         assert time.monotonic() < deadline and p.poll() is None
@@ -255,6 +258,22 @@ def test_ctrl_z_stops_the_command_and_fg_continues_it(server, run_file):
     assert set(seen.values()) == {"T"}, {q: (st, _cmdline(q)) for q, st in seen.items()}
     assert len(seen) >= 3  # the client, the command, and its workers
     p.send_signal(signal.SIGCONT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 0 and '"steps"' in out, err
+
+    # an orphaned process group (a session of its own here): the kernel discards the client's stop, so
+    # the command is stopped and continued at once, and ends as it would have (it stayed stopped for
+    # ever when the continue arrived in the same read as the stop)
+    p = subprocess.Popen([STID, "diagnose", long_run, "--vehicle", VEHICLE, "--peel", "--json"], env=_env(server.dir),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 30
+    while not [r for s in _children(server.proc.pid) for r in _children(s)]:
+        assert time.monotonic() < deadline and p.poll() is None
+        time.sleep(0.05)
+    time.sleep(0.5)
+    for _ in range(5):
+        p.send_signal(signal.SIGTSTP)
+        time.sleep(0.1)
     out, err = p.communicate(timeout=120)
     assert p.returncode == 0 and '"steps"' in out, err
 
@@ -306,3 +325,22 @@ def test_a_closed_stdout_runs_the_command_here_not_in_the_server(server, run_fil
                        capture_output=True, text=True, timeout=120)
     assert len(server.served()) == before
     assert "Traceback" not in r.stderr, r.stderr
+
+
+def test_messages_that_arrive_together_are_each_read():
+    """One read brought two frames (Ctrl-Z's stop and the continue sent at once where the kernel
+    discards the client's own stop; a quick command's 'started' and 'exit'), and the second was
+    dropped: a fresh clone's CI run left a command stopped for ever."""
+    import socket
+
+    from stid.serve import _Messages, _send_msg
+
+    a, b = socket.socketpair()
+    with a, b:
+        for doc in ({"signal": 19}, {"signal": 18}, {"exit": 0}):
+            _send_msg(a, doc)
+        time.sleep(0.05)  # all three in b's buffer before the first read
+        reader = _Messages(b)
+        assert [reader.next()[0] for _ in range(3)] == [{"signal": 19}, {"signal": 18}, {"exit": 0}]
+        a.close()
+        assert reader.next() == (None, [])
