@@ -46,7 +46,6 @@ EXIT_OTHER_BOARD = 6
 IDENTIFY_S = 3.0  # after a replug, wait this long for a HELLO (sent every 1-2 s) to tell the board
 
 
-
 def _gone_in_words(why: str) -> str:
     """pyserial's words for a port that closed under it, as a person says them (the file's
     'disconnect' event keeps pyserial's own)."""
