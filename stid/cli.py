@@ -537,13 +537,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """The console command: in a warm server when one of this code runs (stid.serve), else here."""
-    if argv is None and len(sys.argv) > 1 and not sys.argv[1].startswith("-"):  # (not `stid --help`: at once)
-        from stid.serve import run_in_server
+    try:  # (Ctrl-C while the server is looked for or the parser built: before main_here's own try)
+        if argv is None and len(sys.argv) > 1 and not sys.argv[1].startswith("-"):  # (`stid --help`: at once)
+            from stid.serve import run_in_server
 
-        rc = run_in_server(sys.argv[1:])
-        if rc is not None:
-            return rc
-    return main_here(argv)
+            rc = run_in_server(sys.argv[1:])
+            if rc is not None:
+                return rc
+        return main_here(argv)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
 
 
 def main_here(argv=None) -> int:

@@ -344,3 +344,18 @@ def test_messages_that_arrive_together_are_each_read():
         assert [reader.next()[0] for _ in range(3)] == [{"signal": 19}, {"signal": 18}, {"exit": 0}]
         a.close()
         assert reader.next() == (None, [])
+
+
+def test_ctrl_c_while_the_command_looks_for_a_server_says_interrupted(monkeypatch, capsys):
+    """Ctrl-C in a command's first tenth of a second (looking for a server, building the parser:
+    before main_here's own handler) printed Python's KeyboardInterrupt traceback."""
+    import stid.cli
+    import stid.serve
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(stid.serve, "run_in_server", interrupted)
+    monkeypatch.setattr(sys, "argv", ["stid", "diagnose", "run.mcap"])
+    assert stid.cli.main() == 130
+    assert capsys.readouterr().err == "interrupted\n"
