@@ -120,7 +120,8 @@ def drive_and_log(example: Path) -> dict:
             raise SystemExit(f"demo: stid-log failed for {name}: {err.strip()}")
         errs[name] = err
     echo.flush()
-    say("")
+    say("\n    each drive ended as its simulated car closed its port; stid-log waited the 0.5 s of "
+        "--reconnect-timeout\n    for it to come back, then stopped (its summary says so):")
     for name, _ in DRIVES:
         say("    " + errs[name].strip().splitlines()[-1])
     return files
