@@ -115,8 +115,7 @@ def steer_square_response(model, p: dict, st) -> np.ndarray:
     """d(ay, r)/d(kappa) at kappa = 0 on a stretch: the response to the front-axle force
     Cf alpha_f delta^2 [N] (n, 2)."""
     alpha_f = model.simulate(p, st.steer, st.dt, st.vx_series, outputs=("alpha_f",), sensors=st.sensors)[:, 0]
-    sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], ["dFf"], st.sensors)
-    return sim(p["Cf"] * alpha_f * st.steer ** 2)
+    return _force_response(model, p, st, ["dFf"], (p["Cf"] * alpha_f * st.steer ** 2)[:, None])
 
 
 def exact_geometry_change(model, p: dict, st) -> np.ndarray:
@@ -127,8 +126,17 @@ def exact_geometry_change(model, p: dict, st) -> np.ndarray:
     x_f, x_r = d - a[:, 0], -a[:, 1]  # (vy + a r)/vx and (vy - b r)/vx, linear slip's arguments
     dFf = p["Cf"] * ((d - np.arctan(x_f)) * np.cos(d) - (d - x_f))
     dFr = p["Cr"] * (x_r - np.arctan(x_r))
-    sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], ["dFf", "dFr"], st.sensors)
-    return sim(np.column_stack([dFf, dFr]))
+    return _force_response(model, p, st, ["dFf", "dFr"], np.column_stack([dFf, dFr]))
+
+
+def _force_response(model, p: dict, st, inputs: list, forces: np.ndarray) -> np.ndarray:
+    """The measured outputs' response (n, 2) to axle force inputs (n, k) [N] on a stretch: the
+    simulator's outputs less its zero-input outputs, which are the model's sensor offsets
+    (sensor_bias, accel_offset). With them in, the probe carried the offsets and the
+    exact-geometry change did too, so a model with an offset had that offset's interval widened
+    by the offset's own size."""
+    sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], inputs, st.sensors)
+    return sim(forces) - sim(np.zeros_like(forces))
 
 
 def geometry_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, change: np.ndarray, cov_of):
