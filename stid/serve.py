@@ -21,8 +21,8 @@ id on Linux. ``STID_NO_SERVER=1`` makes a command run cold whatever is running.
 
 The command gets the client's priority (``nice``), not its resource limits (``ulimit``).
 
-Process layout per command: the server accepts and reads the request, then forks a
-*supervisor*, which forks the *runner* (the command) and relays: Ctrl-C (and SIGTERM, SIGHUP)
+Process layout per command: the server accepts and forks a *supervisor*, which reads the
+request, forks the *runner* (the command) and relays: Ctrl-C (and SIGTERM, SIGHUP)
 from the client to the runner, the runner's exit status back, and a client that went away
 (killed) as an interrupt to the runner. The server itself never waits on a command.
 """
@@ -291,6 +291,7 @@ def serve(command, idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
 
     signal.signal(signal.SIGTERM, on_stop)
     signal.signal(signal.SIGINT, on_stop)
+    signal.signal(STOP_ASKED, on_stop)  # from the supervisor that read a `stid serve --stop`
     signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # supervisors are reaped by the kernel
     print(f"stid serve: ready in {time.monotonic() - t0:.1f} s ({path}); `stid` commands of this user and "
           f"environment now start loaded; exits after {idle_s / 60:g} min without one, on Ctrl-C or "
@@ -307,10 +308,10 @@ def serve(command, idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
                     break
                 continue
             last = time.monotonic()
-            if _take(conn, out, command, listener):
-                print("stid serve: stopped (stid serve --stop)", file=out, flush=True)
-                break
-        else:
+            _take(conn, out, command, listener)
+        if STOP_ASKED in stop:
+            print("stid serve: stopped (stid serve --stop)", file=out, flush=True)
+        elif stop:
             print("stid serve: stopped", file=out, flush=True)
     finally:
         listener.close()
@@ -320,6 +321,9 @@ def serve(command, idle_s: float = DEFAULT_IDLE_S, out=None) -> int:
         except OSError:
             pass
     return 0
+
+
+STOP_ASKED = signal.SIGUSR1  # a supervisor to its server: a `stid serve --stop` came
 
 
 def stop_server() -> int:
@@ -371,39 +375,51 @@ def _preload() -> None:
     gc.freeze()
 
 
-def _take(conn: socket.socket, out, command, listener: socket.socket) -> bool:
-    """Read one request and hand it to a supervisor; True for a stop request."""
-    fds: list[int] = []
+def _take(conn: socket.socket, out, command, listener: socket.socket) -> None:
+    """Hand a connection to a supervisor forked at once: the request is read there, so a client
+    that connects and sends nothing holds up no other command (it did for up to 5 s when the
+    server read each request itself)."""
     try:
-        conn.settimeout(5)  # a client sends its request at once
-        if not _peer_is_us(conn):
-            return False
-        messages = _Messages(conn)
-        doc, fds = messages.next(max_fds=3)
-        if doc is None:
-            return False
-        if doc.get("stop"):
-            _send_msg(conn, {"exit": 0})
-            return True
-        if len(fds) != 3 or not isinstance(doc.get("argv"), list):
-            return False
-        conn.settimeout(None)
-        print(f"stid serve: {' '.join(doc['argv'])[:160]}", file=out, flush=True)
-        if os.fork() == 0:
+        if _peer_is_us(conn) and os.fork() == 0:
             try:
                 # (a command's processes that held the listening socket kept it answering after the
                 # server was gone: every later command waited there for ever)
                 listener.close()
-                _supervise(conn, messages, doc, fds, out, command)
+                _read_and_supervise(conn, out, command)
             finally:
                 os._exit(0)
-        return False
+    except OSError:
+        pass
+    finally:
+        conn.close()
+
+
+def _read_and_supervise(conn: socket.socket, out, command) -> None:
+    fds: list[int] = []
+    try:
+        conn.settimeout(5)  # a client sends its request at once
+        messages = _Messages(conn)
+        doc, fds = messages.next(max_fds=3)
+        if doc is None:
+            return
+        if doc.get("stop"):
+            server = os.getppid()
+            os.kill(server, STOP_ASKED)
+            deadline = time.monotonic() + 5
+            while os.getppid() == server and time.monotonic() < deadline:  # gone: this one is reparented
+                time.sleep(0.02)
+            _send_msg(conn, {"exit": 0})  # once the server is gone, so `--stop` returns after it
+            return
+        if len(fds) != 3 or not isinstance(doc.get("argv"), list):
+            return
+        conn.settimeout(None)
+        print(f"stid serve: {' '.join(doc['argv'])[:160]}", file=out, flush=True)
+        _supervise(conn, messages, doc, fds, out, command)
     except (OSError, ValueError):
-        return False
+        return
     finally:
         for fd in fds:
             os.close(fd)
-        conn.close()
 
 
 def _supervise(conn: socket.socket, messages: _Messages, doc: dict, fds: list[int], out, command) -> None:

@@ -209,10 +209,28 @@ def test_stop_ends_every_server_of_this_user(tmp_path):
     try:
         r = _stid(["serve", "--stop"], s.dir)
         assert r.returncode == 0 and "stopped 1 server" in r.stderr
-        s.proc.wait(timeout=20)
+        # gone when --stop returns (a command typed next must not find its socket)
         assert not [n for n in os.listdir(s.dir) if n.endswith(".sock")]
+        s.proc.wait(timeout=20)
+        assert "stopped (stid serve --stop)" in s.log.read_text()
     finally:
         s.stop()
+
+
+def test_a_connection_that_sends_nothing_holds_up_no_command(server, run_file):
+    """The server read each request itself, with a 5 s timeout: a process of the same user that
+    connected and sent nothing held the next command up for those 5 s."""
+    import socket
+
+    path = next(os.path.join(server.dir, n) for n in os.listdir(server.dir) if n.endswith(".sock"))
+    before = len(server.served())
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as silent:
+        silent.connect(path)
+        t0 = time.monotonic()
+        r = _stid(["fit", "missing.mcap", "--vehicle", VEHICLE], server.dir)
+        took = time.monotonic() - t0
+    assert r.returncode == 2 and len(server.served()) == before + 1, r.stderr
+    assert took < 3.0, took  # a served user error takes ~0.1 s; the silent one held it 5 s
 
 
 def _state(pid: int) -> str:
