@@ -446,15 +446,17 @@ def _supervise(conn: socket.socket, messages: _Messages, doc: dict, fds: list[in
         pass
 
     def relay():
-        # the client's signals, and its end: gone without an answer (killed), its command is interrupted
+        # the client's signals, and its end: gone without a word, it was killed (kill -9: a signal it can
+        # catch it forwards), and its command and workers are killed too, as a cold command's would be (an
+        # interrupt made the command print "interrupted" to the terminal after the shell's "Killed")
         while True:
             try:
                 msg, _ = messages.next()
             except (OSError, ValueError):
                 msg = None
-            sig = signal.SIGINT if msg is None else int(msg.get("signal", signal.SIGINT))
+            sig = signal.SIGKILL if msg is None else int(msg.get("signal", signal.SIGINT))
             try:
-                if sig in (signal.SIGSTOP, signal.SIGCONT):  # Ctrl-Z and fg/bg: the workers too
+                if sig in (signal.SIGSTOP, signal.SIGCONT, signal.SIGKILL):  # Ctrl-Z, fg/bg, kill: the workers too
                     os.killpg(pid, sig)
                 else:  # the rest to the command, which ends its workers itself
                     os.kill(pid, sig)
