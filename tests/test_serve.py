@@ -380,3 +380,21 @@ def test_ctrl_c_while_the_command_looks_for_a_server_says_interrupted(monkeypatc
     monkeypatch.setattr(sys, "argv", ["stid", "diagnose", "run.mcap"])
     assert stid.cli.main() == 130
     assert capsys.readouterr().err == "interrupted\n"
+
+
+def test_the_live_views_background_diagnosis_is_served(server, run_file, monkeypatch):
+    """stid live's background diagnosis started `python -m stid.cli`, whose sys.path (the working
+    directory first) is not the console script's: no server ever answered it, and every try
+    loaded numpy, scipy and numba at the lowest priority. It runs the `stid` script now."""
+    from stid.live.diagnosis import BackgroundDiagnosis
+
+    monkeypatch.delenv("STID_NO_SERVER", raising=False)
+    monkeypatch.setenv("STID_SERVE_DIR", server.dir)
+    before = len(server.served())
+    bd = BackgroundDiagnosis(run_file, str(VEHICLE), "bicycle")
+    bd.poll(20.0)
+    assert bd.proc is not None
+    bd.proc.wait(timeout=120)
+    text = bd.poll(20.0)
+    assert text and text.startswith("diagnosis:") and "stid diagnose" in text, text
+    assert len(server.served()) == before + 1, "the diagnosis did not run in the server"

@@ -57,8 +57,8 @@ class BackgroundDiagnosis:
         return self.text
 
     def _start(self, driving_s: float) -> None:
-        cmd = [sys.executable, "-m", "stid.cli", "diagnose", self.path, "--vehicle", self.vehicle_path,
-               "--model", self.model, "--json"]
+        cmd = [*_stid_command(), "diagnose", self.path, "--vehicle", self.vehicle_path, "--model", self.model,
+               "--json"]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                      preexec_fn=lambda: os.nice(NICE))
         self.running_at = driving_s
@@ -72,6 +72,15 @@ class BackgroundDiagnosis:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+
+
+def _stid_command() -> list:
+    """The `stid` console script beside this interpreter, as a user types it: a warm `stid serve`
+    then takes the diagnosis (stid.serve; a server answers only a command of its own sys.path, and
+    `python -m stid.cli` puts the working directory first, so it never found one and loaded numpy,
+    scipy and numba for every try); `python -m stid.cli` where there is no such script."""
+    script = os.path.join(os.path.dirname(sys.executable), "stid")
+    return [script] if os.access(script, os.X_OK) else [sys.executable, "-m", "stid.cli"]
 
 
 def named(doc: dict) -> list:
