@@ -39,6 +39,7 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
         # the command has what it needs (or was interrupted, or failed): whatever a worker is
         # still doing is of no use (a fit started ahead of need), and is not waited for.
         # Terminated before the shutdown: the other order hangs at interpreter exit
+        _forget_cancelled_jobs_when_broken(ex)
         procs = list((getattr(ex, "_processes", None) or {}).values())  # (no public way to stop them)
         for proc in procs:
             proc.terminate()
@@ -55,6 +56,29 @@ def worker_pool(workers: int = WORKERS, before_fork=None):
             ex.shutdown(wait=True, cancel_futures=True)
         finally:
             limit.restore_original_limits()
+
+
+def _forget_cancelled_jobs_when_broken(ex) -> None:
+    """The pool is ended by terminating its workers, which the executor's thread sees as a broken
+    pool: it then marks every job still waiting as failed. On Python 3.11 a job cancelled while it
+    waited (a fit started ahead and not needed) makes that raise InvalidStateError: the thread died
+    with a traceback on the user's terminal before it closed the job pipe, and a job half written
+    into that pipe then held the interpreter's exit for ever (reproduced: tests/test_workers.py;
+    a `stid diagnose --peel` interrupted 1.5 s in hung so). Python 3.12 skips such jobs itself
+    (concurrent/futures/process.py, terminate_broken); here the cancelled ones are left out first,
+    in the executor's own thread (where the shutdown's cancels happen too)."""
+    thread = getattr(ex, "_executor_manager_thread", None)
+    if thread is None or not hasattr(thread, "terminate_broken"):
+        return
+    original = thread.terminate_broken
+
+    def terminate_broken(cause):
+        for work_id, item in list(thread.pending_work_items.items()):
+            if item.future.cancelled():
+                del thread.pending_work_items[work_id]
+        original(cause)
+
+    thread.terminate_broken = terminate_broken
 
 
 def _start_worker(command_pid: int) -> None:
