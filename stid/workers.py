@@ -64,7 +64,7 @@ def _forget_cancelled_jobs_when_broken(ex) -> None:
     waited (a fit started ahead and not needed) makes that raise InvalidStateError: the thread died
     with a traceback on the user's terminal before it closed the job pipe, and a job half written
     into that pipe then held the interpreter's exit for ever (reproduced: tests/test_workers.py;
-    a `stid diagnose --peel` interrupted 1.5 s in hung so). Python 3.12 skips such jobs itself
+    a `stid diagnose --peel` interrupted 1.5 s in hung so). Newer CPython ignores the error there
     (concurrent/futures/process.py, terminate_broken); here the cancelled ones are left out first,
     in the executor's own thread (where the shutdown's cancels happen too)."""
     thread = getattr(ex, "_executor_manager_thread", None)
