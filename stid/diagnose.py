@@ -184,7 +184,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
         if not c.result.converged:  # where a solver stopped is no evidence either way
             c.why_not = "its fit did not converge: " + c.result.status.split("not an optimum: ")[-1]
         elif c.p_value >= level:
-            c.why_not = f"not more than chance: {p_in_words(c.p_value, level)}"
+            c.why_not = p_in_words(c.p_value, level)  # ("chance could give this", "no better than chance")
         elif best_gain < MIN_GAIN:
             c.why_not = f"gains only {best_gain:.2f} fit points"
         elif not enough:
@@ -260,6 +260,9 @@ def _name_one(ranked, skipped, model_name, vehicle, stretches, progress, pool=No
     held = top.pairs.holds_with  # (a pair is named when both hold: see stid.search.pairs.holds_with)
     if held is None:
         top.why_not = f"not named: {top.evidence.reason}"
+        for c in passing[1:]:  # nothing is added, so --peel tests them again after nothing
+            if c.same_symptom_as == top.effect:
+                c.why_not = f"the same symptom as {top.effect}, which is not named either (its own evidence not checked)"
         return
     held.evidence.reason = f"holds once {held.partner} is fitted with it (first: {top.evidence.reason})"
     top.evidence = held.evidence

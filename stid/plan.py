@@ -16,7 +16,7 @@ What "noise" is decides how honest the prediction is:
 - the *residual* spectrum of a fit to a run that drove (``noise_from_runs``): model
   error + noise, what the fit actually meets. On the simulated car this predicts the
   Monte-Carlo spread within the bench's goal (0.7-1.4x; the figures are in the
-  README's "Performance and accuracy"). It is a property of that car, that model and
+  README's "Performance (`make bench`)" and docs/bench.md). It is a property of that car, that model and
   that kind of driving: a plan from it is as good as the run is typical.
 
 The report says which noise it used.
@@ -326,7 +326,7 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
     if not model_error:
         lines.append("  note: sensor noise only: this assumes the model is exactly the car, and predicts the least "
                      "spread a fit can have. Model error adds spread and bias that this plan does not see (README, "
-                     "'Performance and accuracy'); --noise-from RUN with a run that drove plans from the "
+                     "'Performance', and docs/bench.md); --noise-from RUN with a run that drove plans from the "
                      "residuals of a fit to it, which include the model error's spread")
     doc = {"model": model.name, "noise": noise_source, "includes_model_error": model_error,
            "estimator": pred["estimator"],
