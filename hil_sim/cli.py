@@ -6,11 +6,12 @@ import argparse
 import math
 import sys
 
-from hil_sim import manoeuvres, vehicle
 from host.version import installed_version
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from hil_sim import manoeuvres, vehicle  # (here: scipy loads with them, and Ctrl-C then is main's)
+
     ap = argparse.ArgumentParser(
         prog="stid-sim",
         description="A simulated 1:8 car running the real firmware under MicroPython. Prints "
@@ -66,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def config_from_args(args):
+    from hil_sim import manoeuvres, vehicle
+
     from hil_sim.run import SimConfig
 
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
@@ -180,8 +183,11 @@ def _check_outputs(args) -> None:
 
 
 def main(argv=None) -> int:
-    ap = build_parser()
-    args = ap.parse_args(argv)
+    try:  # (Ctrl-C while the simulator loads ends it as Ctrl-C while it runs does, without a traceback)
+        ap = build_parser()
+        args = ap.parse_args(argv)
+    except KeyboardInterrupt:
+        return 130
     try:
         cfg = config_from_args(args)
         if args.fast:

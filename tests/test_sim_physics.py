@@ -299,3 +299,16 @@ def test_a_lossy_fast_run_says_what_the_link_lost(tmp_path):
     assert r.returncode == 0, r.stderr
     m = re.search(r"\((\d+) frames lost, (\d+) rejected, (\d+) samples missing on the faulty link\)", r.stderr)
     assert m and int(m.group(1)) > 0 and int(m.group(3)) > 0, r.stderr
+
+
+def test_ctrl_c_while_the_simulator_loads_ends_it_without_a_traceback(monkeypatch, capsys):
+    """The simulator loads scipy before it parses its options (about a second): Ctrl-C then
+    printed Python's traceback, where Ctrl-C while it runs ends it with status 130."""
+    import hil_sim.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["--fast", "-o", "x.mcap"]) == 130
+    assert capsys.readouterr().err == ""
