@@ -22,11 +22,10 @@ from stid.vehicle_file import Vehicle
 OUTS = ("ay", "r")
 
 
-def _wrong_model_is_told(runs, vehicle, wrong: str):
+def _short_of_the_floor(runs, vehicle, wrong: str):
+    """(floor, its standard error, how far the model ``wrong`` is below it where that is told)."""
     floor, se = noise_floor_uncertainty(dataset.dynamic_stretches(runs))
-    short = below_floor(fit(runs, vehicle, wrong, "time"), floor, se)
-    assert short and max(short.values()) > 2.0, (floor, short)  # told it misses something
-    return floor, se
+    return floor, se, below_floor(fit(runs, vehicle, wrong, "time"), floor, se)
 
 
 def test_a_trim_at_a_swinging_speed_is_inside_the_floor(tmp_path, rc_vehicle):
@@ -34,16 +33,18 @@ def test_a_trim_at_a_swinging_speed_is_inside_the_floor(tmp_path, rc_vehicle):
                                                        "gyro_bandwidth_hz": 0.0})
     runs = load_runs([plain_run(tmp_path / f"run{k}.csv", k + 1, v, trim=0.03, swing=0.25)
                       for k, v in enumerate((4.0, 6.0))], vehicle)
-    floor, se = _wrong_model_is_told(runs, vehicle, "bicycle")
+    floor, se, short = _short_of_the_floor(runs, vehicle, "bicycle")
+    assert short and max(short.values()) > 2.0, (floor, short)  # the model without the trim is told
     good = fit(runs, vehicle, "bicycle+steer_offset", "time")
     for o in OUTS:  # and the right model does not beat the floor beyond its error
         assert good.fit[o] <= floor[o] + 3 * se[o] + 0.1, (o, good.fit, floor, se)
 
 
-def test_tyres_nearing_their_grip_are_inside_the_floor():
+def test_a_model_without_the_tyres_saturation_is_told_it_is_short():
     vehicle = Vehicle("tenth", CAR["mass"], CAR["a"], CAR["b"], sensors={"accel_bandwidth_hz": 0.0,
                                                                          "gyro_bandwidth_hz": 0.0})
     runs = [tanh_car_run(seed=1), tanh_car_run(seed=2, name="tanh2")]
     # (the floor rose from ay 88.0% to 96.0% here; the right model fits 99.4%: a saturation that
     # follows the slip, not the steer, is more than a cube of the steer shows, and beats the floor)
-    _wrong_model_is_told(runs, vehicle, "bicycle")
+    floor, _, short = _short_of_the_floor(runs, vehicle, "bicycle")
+    assert short and max(short.values()) > 2.0, (floor, short)
