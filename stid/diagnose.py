@@ -260,7 +260,7 @@ def _name_one(ranked, skipped, model_name, vehicle, stretches, progress, pool=No
     held = top.pairs.holds_with  # (a pair is named when both hold: see stid.search.pairs.holds_with)
     if held is None:
         top.why_not = f"not named: {top.evidence.reason}"
-        for c in passing[1:]:  # nothing is added, so --peel tests them again after nothing
+        for c in passing[1:]:  # nothing is added: "--peel tests it again once that is added" would not come
             if c.same_symptom_as == top.effect:
                 c.why_not = f"the same symptom as {top.effect}, which is not named either (its own evidence not checked)"
         return

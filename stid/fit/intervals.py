@@ -132,7 +132,7 @@ def exact_geometry_change(model, p: dict, st) -> np.ndarray:
 def _force_response(model, p: dict, st, inputs: list, forces: np.ndarray) -> np.ndarray:
     """The measured outputs' response (n, 2) to axle force inputs (n, k) [N] on a stretch: the
     simulator's outputs less its zero-input outputs, which are the model's sensor offsets
-    (sensor_bias, accel_offset). With them in, the probe carried the offsets and the
+    (sensor_bias: the gyro's and the accelerometer's). With them in, the probe carried the offsets and the
     exact-geometry change did too, so a model with an offset had that offset's interval widened
     by the offset's own size."""
     sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], inputs, st.sensors)
