@@ -151,10 +151,38 @@ def test_a_rank_deficient_jacobian_names_the_aliased_parameters():
     assert set(out) == {"Cr", "Iz"} and "Iz" in out["Cr"], out
 
 
-def test_a_probe_the_parameters_already_make_gives_no_z():
+def test_a_probe_the_parameters_already_make_gives_no_z_and_cannot_rule_the_geometry_out():
+    """A probe in the span of the Jacobian has no standard error (no z: the pseudo-inverse's
+    would be a huge number), and data that cannot tell the geometry keep its allowance: the
+    least-squares step that the exact geometry's change asks of the parameters."""
     rng = np.random.default_rng(2)
     J = rng.standard_normal((800, 3))
     r = rng.standard_normal(800)
     probe = J @ np.array([1.0, 0.5, -0.2])  # in the span of J: its coefficient is not determined
-    allowance, z = geometry_allowance(J, r, probe, probe, lambda J_, r_: np.linalg.pinv(J_.T @ J_))
-    assert np.all(allowance == 0) and np.isnan(z)
+    change = J @ np.array([0.01, -0.02, 0.0]) + 1e-3 * rng.standard_normal(800)
+    check = geometry_allowance(J, r, probe, change, lambda J_, r_: np.linalg.pinv(J_.T @ J_))
+    assert np.isnan(check.z) and not check.shown
+    assert np.allclose(check.allowance, [0.01, 0.02, 0.0], atol=1e-3), check.allowance
+    assert "cannot rule out" in check.words()
+
+
+def test_the_geometry_is_ruled_out_only_by_data_that_reject_it():
+    """kappa near zero with a small error (an exact linear bicycle) keeps the intervals; the same
+    kappa with an error that admits the geometry's -1/2 widens them, and so does a kappa the data
+    show (significant), whatever its value."""
+    rng = np.random.default_rng(3)
+    J = rng.standard_normal((2000, 2))
+    probe = rng.standard_normal(2000)
+    change = 0.3 * J[:, 0] + 0.1 * rng.standard_normal(2000)
+
+    def check(kappa, noise):
+        r = -(kappa * probe) + noise * rng.standard_normal(2000)  # residuals of a fit without the probe
+        return geometry_allowance(J, r, probe, change, lambda J_, r_: np.var(r_) * np.linalg.inv(J_.T @ J_))
+
+    linear = check(0.0, 1.0)  # se ~ 0.02: -1/2 is far outside
+    assert abs(linear.z) < 2 and not np.any(linear.allowance), (linear.kappa, linear.se)
+    vague = check(0.0, 30.0)  # se ~ 0.7: -1/2 within it
+    assert abs(vague.z) < 2 and vague.allowance[0] > 0.25, (vague.kappa, vague.se)
+    assert "cannot rule out" in vague.words() and "cos delta gives -0.5" in vague.words()
+    shown = check(-0.47, 1.0)
+    assert shown.shown and shown.allowance[0] > 0.25 and "the data show" in shown.words()

@@ -158,13 +158,12 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
 
         change = np.concatenate([
             (jk.exact_geometry_change(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
-        allow_x, z = jk.geometry_allowance(res.jac, res.fun, probe, change, lambda J, r: _sandwich(J, r, keeps))
-        allowance = allow_x * space.dp_dx(res.x)  # to physical units (first order)
+        geometry = jk.geometry_allowance(res.jac, res.fun, probe, change, lambda J, r: _sandwich(J, r, keeps))
+        allowance = geometry.allowance * space.dp_dx(res.x)  # to physical units (first order)
         grown = [n for n, a in zip(space.free, allowance) if a > 0 and n not in verdict.undetermined]
         if grown:
-            interval_note += ("; the data show the large-angle geometry the linear model leaves out (a front force "
-                              f"that changes with the square of the steer, z = {z:.1f}): {', '.join(grown)} widened "
-                              "to hold the answer with exact geometry (cos delta, atan slip angles) too")
+            interval_note += (f"; {geometry.words()}: {', '.join(grown)} widened to hold the answer with exact "
+                              "geometry (cos delta, atan slip angles) too")
 
     result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
     result.set_verdict(verdict)
