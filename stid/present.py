@@ -10,6 +10,7 @@ import textwrap
 import numpy as np
 
 from stid.analysis.noise_floor import floor_words
+from stid.fit.result import at_resolution
 from stid.models.params import unit_suffix
 
 WIDTH = 100
@@ -26,12 +27,15 @@ def _wrap(text: str, indent: str = "  ", first: str | None = None) -> list:
 
 def _params_with_intervals(res, owner=None) -> str:
     out = []
+    se_of = dict(zip(res.names, res.stderr))
     for n, v in res.params().items():
         if owner is not None and res.owners.get(n) != owner:
             continue
         ci = res.interval_of(n)
-        where = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else f"(no interval: {res.undetermined.get(n, '')})"
-        out.append(f"{n} = {v:.4g} {where}{unit_suffix(res.units.get(n, ''))}")
+        se = se_of.get(n, float("nan")) if ci else float("nan")
+        where = (f"[{at_resolution(ci[0], se)}, {at_resolution(ci[1], se)}]" if ci
+                 else f"(no interval: {res.undetermined.get(n, '')})")
+        out.append(f"{n} = {at_resolution(v, se)} {where}{unit_suffix(res.units.get(n, ''))}")
     return ", ".join(out)
 
 

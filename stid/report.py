@@ -28,6 +28,7 @@ from stid.errors import InputError  # noqa: E402
 from stid.output_paths import check_report_dir  # noqa: E402
 from stid.stats import SCORE_FROM_S  # noqa: E402
 from stid.fit.frf import estimate_frf  # noqa: E402
+from stid.fit.result import at_resolution, se_text  # noqa: E402
 from stid.fit.steady_fit import fit_steady  # noqa: E402
 from stid.models.model import Model  # noqa: E402
 from stid.present import diagnosis_text  # noqa: E402
@@ -440,9 +441,9 @@ def _figure(title: str, fig, words: str = "") -> str:
 def _params_table(res) -> str:
     rows = []
     for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95):
-        ci = (f"[{lo:.5g}, {hi:.5g}]" if res.interval_of(n)
+        ci = (f"[{at_resolution(lo, se)}, {at_resolution(hi, se)}]" if res.interval_of(n)
               else f"no interval ({html.escape(res.undetermined.get(n, ''))})")
-        rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>{se:.3g}</td><td>{ci}</td>"
+        rows.append(f"<tr><td>{n}</td><td>{at_resolution(v, se)}</td><td>{se_text(se)}</td><td>{ci}</td>"
                     f"<td>{html.escape(res.units[n])}</td><td>{html.escape(res.owners.get(n, ''))}</td></tr>")
     for n, (v, unit, why) in res.fixed.items():
         rows.append(f"<tr><td>{n}</td><td>{v:.5g}</td><td>fixed</td><td></td><td>{html.escape(unit)}</td>"

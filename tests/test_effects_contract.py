@@ -207,6 +207,8 @@ def test_the_tutorial_runs_end_to_end_and_the_error_falls(tmp_path):
     printed = [re.search(rf"^\s*{n}\s+([0-9.]+)", out, re.M).group(1) for out in (fit_mine, fit_plain)
                for n in ("Cf", "Cr", "Iz")]
     assert list(said) == printed, (said, printed)
+    step5 = r"accel_scale_err = ([-0-9.]+)\s+\[([-0-9.]+), ([-0-9.]+)\]"
+    assert re.search(step5, DOC).groups() == re.search(step5, diag_with).groups(), diag_with
 
 
 def test_a_user_effect_cannot_take_a_catalogue_name(tmp_path, simdir):

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stid.fit.result import at_resolution
 from stid.models.params import unit_suffix
 
 SPEED_STEP = 1.15  # a new speed group starts 15% above the last one's slowest stretch
@@ -106,18 +107,20 @@ def disagreements(parts: dict, names) -> list:
     for kind, groups in parts.items():
         for n in names:
             vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n),
-                     dict(zip(g.result.names, g.result.half95)).get(n)) for g in groups]
+                     dict(zip(g.result.names, g.result.half95)).get(n),
+                     dict(zip(g.result.names, g.result.stderr)).get(n)) for g in groups]
             vals = [v for v in vals if v[2] is not None and np.all(np.isfinite(v[2]))]
             bad = False
             for i in range(len(vals)):
                 for j in range(i + 1, len(vals)):
-                    hi_, hj = Z99_OVER_Z95 * vals[i][3], Z99_OVER_Z95 * vals[j][3]
+                    hi_, hj = Z99_OVER_Z95 * vals[i][3], Z99_OVER_Z95 * vals[j][3]  # (half-widths)
                     diff = abs(vals[i][1] - vals[j][1])
                     if diff > np.hypot(hi_, hj) and diff > MATERIAL * max(abs(vals[i][1]), abs(vals[j][1])):
                         bad = True
             if bad:
                 unit = unit_suffix(groups[0].result.units.get(n, ""))
-                txt = ", ".join(f"{v:.4g} [{ci[0]:.4g}, {ci[1]:.4g}]{unit} at {lab}" for lab, v, ci, _ in vals)
+                txt = ", ".join(f"{at_resolution(v, se)} [{at_resolution(ci[0], se)}, {at_resolution(ci[1], se)}]"
+                                f"{unit} at {lab}" for lab, v, ci, _, se in vals)
                 out.append((kind, n, f"{n} {txt}"))
     return out
 

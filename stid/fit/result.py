@@ -216,8 +216,8 @@ class FitResult:
             wide = half / se if se > 0 else 0.0
             mark = f"  (+-{wide:.1f} se)" if wide > WIDE_SE else ""
             widened |= bool(mark)
-            lines.append(f"  {name:<14}{_num(v):>13}{_num(se):>13} {rel:>8}  [{_num(lo)}, {_num(hi)}]  "
-                         f"{self.units[name]}{mark}")
+            lines.append(f"  {name:<14}{at_resolution(v, se):>13}{se_text(se):>13} {rel:>8}  "
+                         f"[{at_resolution(lo, se)}, {at_resolution(hi, se)}]  {self.units[name]}{mark}")
         for name, (v, unit, why) in self.fixed.items():
             lines.append(f"  {name:<14}{_num(v):>13}{'fixed':>13}           {why}  {unit}")
         if self.fit:
@@ -264,7 +264,24 @@ WIDE_SE = 2.5  # half-width / std. error beyond which a row says how wide (noise
 def _num(x: float) -> str:
     if x == 0 or not np.isfinite(x):
         return f"{x:g}"
-    mag = abs(x)
-    if mag >= 1e4 or mag < 1e-3:
-        return f"{x:.4g}"
     return f"{x:.4g}"
+
+
+def at_resolution(x: float, se: float) -> str:
+    """``x`` to the decimal of its standard error's second significant digit (metrology's
+    convention, GUM 7.2.6), trailing zeros kept: a bound of 399.963 with a std. error of 0.83
+    prints 399.96. At four significant digits it printed 400, and read as holding a truth of
+    400 that it misses. Without a usable standard error: four significant digits."""
+    if x == 0 or not (np.isfinite(x) and np.isfinite(se) and se > 0):
+        return _num(x)
+    digits = int(np.floor(np.log10(abs(x)))) - int(np.floor(np.log10(se))) + 2
+    s = f"{x:#.{min(max(digits, 2), 12)}g}"
+    return s if "e" in s else s.rstrip(".")
+
+
+def se_text(se: float) -> str:
+    """A standard error to two significant digits (the resolution at_resolution prints to)."""
+    if not (np.isfinite(se) and se > 0):
+        return _num(se)
+    s = f"{se:#.2g}"
+    return s if "e" in s else s.rstrip(".")
