@@ -234,6 +234,10 @@ def load_mcap(path, vehicle: Vehicle | None = None, log=None) -> list[Run]:
         raise InputError(str(e)) from None
     s = log.samples
     if len(s) < MIN_SAMPLES:
+        if log.truncated:  # the head of a file that was cut (a copy stopped, a logger killed early)
+            raise InputError(f"{path} was cut short after {Path(path).stat().st_size} bytes and holds {len(s)} "
+                             "samples before the cut: too few to use (a copy that stopped, or a logger "
+                             "killed at once): copy the whole file again, or record the run again")
         raise InputError(f"{path} holds {len(s)} samples: too few to use (was the logger connected to the car?)")
     if not log.hello:
         raise InputError(f"{path} has samples but no HELLO frame got through, so the ADC scale is unknown; "

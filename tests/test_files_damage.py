@@ -327,6 +327,19 @@ def _stid(*args):
     return subprocess.run([tool("stid"), *map(str, args)], capture_output=True, text=True, timeout=60)
 
 
+def test_the_head_of_a_cut_file_is_called_cut_short_not_a_logger_without_a_car(small_log, tmp_path):
+    """The first 3000 bytes of a log (a copy that stopped) hold no sample: that is a cut file,
+    and the message said 'was the logger connected to the car?'."""
+    from stid.errors import InputError
+    from stid.load import load_mcap
+
+    head = tmp_path / "head.mcap"
+    head.write_bytes(small_log.read_bytes()[:3000])
+    with pytest.raises(InputError, match="was cut short after 3000 bytes and holds 0 samples") as e:
+        load_mcap(head)
+    assert "connected" not in str(e.value)
+
+
 def test_repair_keeps_every_metadata_record(small_log, tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(small_log.read_bytes())
