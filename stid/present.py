@@ -58,7 +58,10 @@ def _screened_line(d) -> str:
     if groups["capped"]:
         from stid.search.screen import MAX_FULL_FITS  # (compare, which only needs the layout, skips the search)
 
-        parts.append(f"ranked below the {MAX_FULL_FITS} best: " + ", ".join(groups["capped"]))
+        # (ranked by the step's likelihood ratio, both outputs together; the points are its predicted
+        # gain in the better one, so a candidate below may show more points than one fitted)
+        parts.append(f"ranked below the {MAX_FULL_FITS} best by likelihood ratio (predicted gain, fit points): "
+                     + ", ".join(groups["capped"]))
     if groups["small"]:
         parts.append("would gain under 0.25 fit points: " + ", ".join(groups["small"]))
     if groups["chance"]:
