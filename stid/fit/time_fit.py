@@ -153,11 +153,8 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                              + (f"; model error widened {', '.join(space.free[i] for i in widened)} "
                                 f"(t with {jk_dof} dof)" if widened else ""))
         # a symmetric steer nonlinearity the linear model lacks (see stid.fit.intervals)
-        probe = np.concatenate([
-            (jk.steer_square_response(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
-
-        change = np.concatenate([
-            (jk.exact_geometry_change(model, p_hat, st)[k] / sigma).ravel() for st, k in zip(stretches, keeps)])
+        rows = [jk.geometry_responses(model, p_hat, st) for st in stretches]
+        probe, change = (np.concatenate([(r[j][k] / sigma).ravel() for r, k in zip(rows, keeps)]) for j in (0, 1))
         geometry = jk.geometry_allowance(res.jac, res.fun, probe, change, lambda J, r: _sandwich(J, r, keeps))
         allowance = geometry.allowance * space.dp_dx(res.x)  # to physical units (first order)
         grown = [n for n, a in zip(space.free, allowance) if a > 0 and n not in verdict.undetermined]
