@@ -150,6 +150,12 @@ def _floor_line(res, floor, se, args) -> str:
         from stid.analysis.noise_floor import floor_words
 
         text += "; " + floor_words({o: v for o, v in floor.items() if o not in known}, se)
+    from stid.analysis.noise_floor import ABOVE_WORDS, above_floor
+
+    above = above_floor(res.fit, floor, se)
+    if above:
+        text += ("\n  this model is above it (" + ", ".join(f"{o} {g:.1f} points" for o, g in above.items())
+                 + f"): {ABOVE_WORDS}")
     if short and not res.converged:
         text += ("\n  this fit is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
                  + ") because the solver did not converge, not because the model must lack something")

@@ -9,7 +9,7 @@ import textwrap
 
 import numpy as np
 
-from stid.analysis.noise_floor import floor_words
+from stid.analysis.noise_floor import above_floor, floor_words
 from stid.fit.result import at_resolution
 from stid.models.params import unit_suffix
 
@@ -79,7 +79,8 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         head = "" if k == 0 else f"step {k + 1}: "
         n = len(d.base.predictions)
         lines.append(f"{head}model {d.model}: fit ay {d.base.fit['ay']:.1f}%, r {d.base.fit['r']:.1f}%   "
-                     f"{floor_words(d.floor, d.floor_se)}   [{n} stretch{'es' if n != 1 else ''} at {_speeds(d)}]")
+                     f"{floor_words(d.floor, d.floor_se, d.base.fit)}   [{n} stretch{'es' if n != 1 else ''} at "
+                     f"{_speeds(d)}]")
         if not d.base.converged:
             lines.extend(_wrap(d.base.verdict_line(), first="  "))
         if any(c.skipped or c.result is not None for c in d.candidates):
@@ -101,6 +102,9 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         known = [o for o in ("ay", "r") if math.isfinite(d.floor[o])]
         if best is not None:
             lines.extend(_named_lines(d))
+        elif known and above_floor(d.base.fit, d.floor, d.floor_se):
+            lines.extend(_wrap("=> nothing more is named: the model fits above the noise floor, which then cannot "
+                               "say whether something is still missing", first="  "))
         elif known and all(d.base.fit[o] >= d.floor[o] - 0.5 for o in known):
             lines.append("  => nothing is missing that this data can show: the model is at the noise floor"
                          + ("" if len(known) == 2 else f" of {known[0]} (the other has none)"))

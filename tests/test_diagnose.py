@@ -425,3 +425,39 @@ def test_diagnose_and_compare_say_a_csv_declares_no_sensor_chain(tmp_path, capsy
 
     assert main(["compare", str(path), "--vehicle", str(REPO / "docs/examples/rc8.toml"), "--model", "bicycle"]) == 0
     assert "carries no sensor chain" in capsys.readouterr().err
+
+
+def test_above_the_floor_a_small_gain_from_one_steer_amplitude_is_not_named(simdir, rc_vehicle):
+    """Tyres deep in their saturation (the simulator's Magic Formula, not the catalogue's tanh), at
+    one steer amplitude (6 deg): once tyre_saturation is added the model fits above the noise
+    floor, and a locked differential's yaw damping took 0.6 points of what the catalogue's tyre law
+    leaves: it was named (a new user's pairs, 5 of 7; this one). Above the floor, from one
+    amplitude, it is not named, and the candidate's verdict says what would test it."""
+    runs = load_runs(random_steer_pair(simdir, ("tyre_saturation",), seeds=(114, 116), duration=30.0,
+                                       steer_amp=np.radians(6.0)), rc_vehicle)
+    rounds = diagnose(runs, rc_vehicle, "bicycle", peel=True)
+    assert [e for d in rounds for e in d.named] == ["tyre_saturation"], [d.named for d in rounds]
+    last = rounds[-1]
+    assert last.model == "bicycle+tyre_saturation"
+    refused = [c for c in last.candidates if "fits above the noise floor" in c.why_not]
+    assert refused and all("second steer amplitude" in c.why_not for c in refused), \
+        [(c.effect, c.why_not) for c in last.candidates]
+
+
+def test_an_effect_whose_own_interval_holds_its_absence_is_not_shown():
+    """The likelihood ratio counts model error as signal (N / tau samples); the intervals do not.
+    A new user's diagnosis named a locked_diff 'far beyond chance' with k_diff 3.3 [-0.43, 7.0] N m:
+    an effect every parameter of which may be at its off value is not shown by the data."""
+    from stid.diagnose import _interval_holds_absence
+    from stid.fit.result import FitResult
+    from stid.search.candidate import Candidate
+
+    def candidate(k_diff, se):
+        c = Candidate("locked_diff")
+        c.result = FitResult(model="bicycle+locked_diff", method="time", names=["Cf", "k_diff"],
+                             values=np.array([400.0, k_diff]), cov=np.diag([1.0, se ** 2]),
+                             units={"Cf": "N/rad", "k_diff": "N m"}, n=10_000)
+        return c
+
+    assert _interval_holds_absence(candidate(3.3, 1.9)).startswith("k_diff [-0.42, 7.0")
+    assert _interval_holds_absence(candidate(2.07, 0.36)) == ""

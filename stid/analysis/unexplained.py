@@ -91,8 +91,12 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
         u.where.extend(where_without_floor(model_name, result, vehicle, stretches, mapper, parts))
         return u
     if not short:
-        u.where.append(f"{model_name} is at the noise floor of this data: "
-                       + ", ".join(f"{o} {result.fit[o]:.1f}% vs {floor[o]:.1f}% (+-{floor_se[o]:.2f})" for o in OUTS))
+        from stid.analysis.noise_floor import ABOVE_WORDS, above_floor
+
+        where = "above" if above_floor(result.fit, floor, floor_se) else "at"
+        u.where.append(f"{model_name} is {where} the noise floor of this data: "
+                       + ", ".join(f"{o} {result.fit[o]:.1f}% vs {floor[o]:.1f}% (+-{floor_se[o]:.2f})" for o in OUTS)
+                       + (f"; {ABOVE_WORDS}" if where == "above" else ""))
         return u
     if not catalogue_done:
         u.where.append("other catalogued effects were not tested on top of it: run diagnose with --peel")
