@@ -101,7 +101,9 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         best = d.best
         known = [o for o in ("ay", "r") if math.isfinite(d.floor[o])]
         if best is not None:
-            lines.extend(_named_lines(d))
+            # a later step names more: these numbers are of a model still missing it (it may move them)
+            later = any(r.best is not None for r in rounds[k + 1:])
+            lines.extend(_named_lines(d, f"95%, in {d.named_model}: step {k + 2} adds more" if later else "95%"))
         elif known and above_floor(d.base.fit, d.floor, d.floor_se):
             lines.extend(_wrap("=> nothing more is named: the model fits above the noise floor, which then cannot "
                                "say whether something is still missing", first="  "))
@@ -147,8 +149,9 @@ def _speeds(d) -> str:
     return ", ".join(f"{v:g}" for v in sorted({round(p.vx, 1) for p in d.base.predictions})) + " m/s"
 
 
-def _named_lines(d) -> list:
-    """What a round names: the best effect, or the pair it is named in, with why and the numbers."""
+def _named_lines(d, which: str = "95%") -> list:
+    """What a round names: the best effect, or the pair it is named in, with why and the numbers
+    (``which``: what the intervals are, said after them)."""
     best = d.best
     same = [c.effect for c in d.same_symptom]
     also = f" ({', '.join(same)}: the same symptom, not separate effects)" if same else ""
@@ -160,11 +163,11 @@ def _named_lines(d) -> list:
         for c in (best, partner):
             out += _wrap(c.explanation, indent="     ")
         for e in (best.effect, best.pair_with):
-            out += _wrap(f"{e}: {_params_with_intervals(pair.result, e)} (95%, fitted jointly)", indent="     ")
+            out += _wrap(f"{e}: {_params_with_intervals(pair.result, e)} ({which}, fitted jointly)", indent="     ")
         return out
     out = _wrap(f"=> add {best.effect} first{also}", first="  ")
     out += _wrap(best.explanation, indent="     ")
-    out += _wrap(f"{best.effect}: {_params_with_intervals(best.result, best.effect)} (95%)", indent="     ")
+    out += _wrap(f"{best.effect}: {_params_with_intervals(best.result, best.effect)} ({which})", indent="     ")
     return out
 
 
@@ -234,7 +237,12 @@ def _verdict(entries, runs=None, vehicle_path=None) -> str:
         if one:
             return text + ": with no noise floor on this data, nothing says how close it comes to a correct model"
         return text + " (with no noise floor on this data, nothing says how close it comes to a correct model)"
-    if not gap:
+    above = above_floor(best["fit"], fl, se)
+    if not gap and above:
+        text += ((" fits" if one else " and fits") + " above the noise floor in " + ", ".join(above)
+                 + ": the floor misses a nonlinearity this data holds (such as tyres deep in their saturation), "
+                 "so it cannot say whether something is still missing")
+    elif not gap:
         text += ((" reaches" if one else " and reaches") + " the noise floor"
                  + (f" of {', '.join(known)} (there is none for the other)" if len(known) < 2 else "")
                  + ": nothing more this data can show")

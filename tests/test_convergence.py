@@ -185,4 +185,6 @@ def test_the_geometry_is_ruled_out_only_by_data_that_reject_it():
     assert abs(vague.z) < 2 and vague.allowance[0] > 0.25, (vague.kappa, vague.se)
     assert "cannot rule out" in vague.words() and "cos delta gives -0.5" in vague.words()
     shown = check(-0.47, 1.0)
-    assert shown.shown and shown.allowance[0] > 0.25 and "the data show" in shown.words()
+    assert shown.shown and shown.allowance[0] > 0.25 and "the data show the large-angle geometry" in shown.words()
+    other = check(+0.47, 1.0)  # significant, but not the geometry's sign: said, not called the geometry
+    assert other.shown and "opposite sign to the large-angle geometry" in other.words(), other.words()

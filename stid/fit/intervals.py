@@ -184,13 +184,18 @@ class GeometryCheck:
         """Why the intervals grew, for the fit's interval note ('' when they did not)."""
         if not np.any(self.allowance > 0):
             return ""
-        if self.shown:
-            return (f"the data show the large-angle geometry the linear model leaves out (a front force that "
-                    f"changes with the square of the steer, z = {self.z:.1f})")
-        seen = ("the parameters move the outputs as it would" if not np.isfinite(self.se) else
-                f"kappa {self.kappa:+.2f} +- {self.se:.2f}, where cos delta gives {KAPPA_GEOMETRY:+.1f}")
+        kappa = (f"kappa {self.kappa:+.2f} (std. error {self.se:.2f}, z = {self.z:.1f}), where cos delta "
+                 f"gives {KAPPA_GEOMETRY:+.1f}")
+        if self.shown and self.kappa < 0:
+            return ("the data show the large-angle geometry the linear model leaves out (a front force that "
+                    f"changes with the square of the steer, force x (1 + kappa delta^2): {kappa})")
+        if self.shown:  # significant, but of the other sign: not the geometry itself
+            return ("the data show a front force that changes with the square of the steer (force x (1 + kappa "
+                    f"delta^2): {kappa}), of the opposite sign to the large-angle geometry: something the model "
+                    "leaves out that the geometry's allowance may not cover")
+        seen = ("the parameters move the outputs as it would" if not np.isfinite(self.se) else kappa)
         return ("the data cannot rule out the large-angle geometry every car has and the linear model leaves "
-                f"out (a front force that changes with the square of the steer: {seen})")
+                f"out (a front force that changes with the square of the steer, force x (1 + kappa delta^2): {seen})")
 
 
 def geometry_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, change: np.ndarray, cov_of) -> GeometryCheck:

@@ -210,7 +210,9 @@ class FitResult:
                 lines.append(f"  {name:<14}{_num(v):>13}{'-':>13}           no interval ({self.undetermined[name]})  "
                              f"{self.units[name]}")
                 continue
-            rel = f"({100 * se / abs(v):.1f}%)" if v else ""
+            pct = 100 * se / abs(v) if v else 0.0
+            # (a std. error under 0.1% of the value kept two digits: '(0.0%)' read as none)
+            rel = (f"({pct:.1f}%)" if pct >= 0.1 else f"({pct:.1g}%)") if v else ""
             # an interval the model-error allowance or a t of few blocks made wider than ~2 standard
             # errors says so on its row: the two columns would disagree without a word
             wide = half / se if se > 0 else 0.0
@@ -236,7 +238,8 @@ class FitResult:
             lines.append(f"  {verdict}")
         if self.interval and self.converged:
             lines.append(f"  {self.interval}"
-                         + ("; a row marked (+-N se) holds an interval N standard errors wide for that reason"
+                         + ("; a row marked (+-N se) has an interval that reaches N standard errors either side "
+                            "of its value (in log space for a positive parameter), for the reasons above"
                             if widened else ""))
         for w in self.notes:
             lines.append(f"  note: {w}")
