@@ -102,6 +102,8 @@ def test_started_from_the_bicycle_it_converges_to_the_truth(saturated, tenth):
         lo, hi = res.interval_of(name)
         assert lo <= truth[name] <= hi, (name, truth[name], res.table())
     assert not res.undetermined and not res.at_bound
+    # a tanh car holds its truth; a car's own tyre shape would not, and the fit says so
+    assert any(n.startswith("tyre_saturation: its law is tanh") for n in res.notes), res.notes
 
 
 def test_a_parameter_at_its_bound_has_no_interval(tenth):

@@ -81,6 +81,9 @@ def fit(runs, vehicle, model_name: str = "bicycle", method: str = "auto", dynami
         result = again if again.loglik > result.loglik else result
         if nested.worse_than(result, contained):
             nested.say_worse(result, contained)
+    for e in model.effects:
+        if e.fit_note:
+            result.note(f"{e.name}: {e.fit_note}")
     for w in sensor_chain.undeclared_warnings(runs, vehicle):
         result.warn(w)
     for w in plausibility.stiffness_warnings(result, runs, vehicle):

@@ -118,6 +118,9 @@ class Effect:
     # output, not the command. A linear block at "linkage" (or a pure delay, which commutes with a
     # static map) stays in the linear model, behind every map.
     steer_place: ClassVar[str] = "linkage"
+    # Said under every fit of a model with this effect: what the effect's form assumes that a car
+    # need not do, and what that does to the numbers beyond their intervals (empty: nothing).
+    fit_note: ClassVar[str] = ""
 
     def apply(self, sys: LinSys, p: dict, ctx: Context) -> LinSys:
         return sys
