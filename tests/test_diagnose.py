@@ -461,3 +461,22 @@ def test_an_effect_whose_own_interval_holds_its_absence_is_not_shown():
 
     assert _interval_holds_absence(candidate(3.3, 1.9)).startswith("k_diff [-0.42, 7.0")
     assert _interval_holds_absence(candidate(2.07, 0.36)) == ""
+
+
+@pytest.mark.slow
+def test_above_the_floor_two_steer_amplitudes_tell_a_tyre_law_from_a_locked_diff(simdir, rc_vehicle):
+    """What the refusal above the floor asks for, done: the same saturating tyres at 3 and 6 deg of
+    steer, at 4 and 6 m/s. A locked_diff standing in for the tyre law is then refused by the
+    evidence (measured: k_diff 0.22 [-0.24, 0.69] N m at 2.9 deg rms, 1.89 [0.95, 2.83] at 5.8),
+    and a locked_diff the car has is named."""
+    def runs(effects):
+        return load_runs([sim_run(simdir, "random_steer", effects, seed=10 * v + a, speed=float(v), duration=30.0,
+                                  steer_amp=np.radians(a)) for v in (4, 6) for a in (3, 6)], rc_vehicle)
+
+    rounds = diagnose(runs(("tyre_saturation",)), rc_vehicle, "bicycle", peel=True)
+    assert [e for d in rounds for e in d.named] == ["tyre_saturation"], [d.named for d in rounds]
+    diff = next((c for c in rounds[-1].candidates if c.effect == "locked_diff"), None)
+    assert diff is None or "across amplitude" in diff.why_not or diff.result is None, diff.why_not
+    rounds = diagnose(runs(("tyre_saturation", "locked_diff")), rc_vehicle, "bicycle", peel=True)
+    assert sorted(e for d in rounds for e in d.named) == ["locked_diff", "tyre_saturation"], \
+        [d.named for d in rounds]
