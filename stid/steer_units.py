@@ -38,6 +38,12 @@ GENTLE_AY = 0.15 * 9.81  # the tyres are linear when cornering gently (as stid c
 LOWPASS_HZ = 1.0  # below a 1:10 car's yaw natural frequency (2-5 Hz): the slow, quasi-steady part
 
 
+def not_radians(where: str, what: str, peak: float) -> str:
+    """The words for a steering angle beyond any road wheel's reach as radians (degrees?)."""
+    return (f"{where}: '{what}' reaches {peak:.3g}, which no road wheel turns in rad ({np.degrees(peak):.0f} deg; "
+            f"RC cars' steering locks are ~{MAX_ROAD_WHEEL_RAD:g} rad): degrees, or a servo command in other units?")
+
+
 def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer"):
     """``(angle [rad], notes, warnings)`` from the steering signal ``x`` (on the run's grid).
 
@@ -81,6 +87,9 @@ def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer")
                          f"in rad (that is ~0 there); if it is a servo command, declare its map: [steering] offset = "
                          f"{centre:.3g} and gain = the command change per rad")
     peak = float(np.max(np.abs(x)))
+    if peak > 1.0:
+        raise InputError(not_radians(where, what, peak) + "; declare its map: [steering] offset = 0 and gain = "
+                         "57.2958 if it is in degrees (the command per rad)")
     if MAX_ROAD_WHEEL_RAD < peak <= 1.0:
         # beyond most steering locks as radians; the kinematics decide: a road-wheel angle in rad
         # has a map of gain ~1 once the understeer is apart, a +-1 command 1 / its full lock

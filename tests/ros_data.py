@@ -143,6 +143,7 @@ class Layout:
     backwards_at: int | None = None  # an IMU stamp that goes back
     nan_at: int | None = None  # an IMU message whose ay is NaN (a driver's failed read)
     extra_topics: dict = field(default_factory=dict)  # topic -> msgtype, a few messages each
+    steer_deg: bool = False  # the Ackermann steering_angle published in degrees (a driver's mistake)
 
 
 def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
@@ -217,7 +218,8 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
             events.append((rx(t), layout.steer_topic, f64.__msgtype__, m))
         else:
             m = ack_cls(header=header(t, "base_link", layout.steer_topic),
-                        drive=drv_cls(steering_angle=a, steering_angle_velocity=0.0, speed=3.0, acceleration=0.0,
+                        drive=drv_cls(steering_angle=float(np.degrees(a)) if layout.steer_deg else a,
+                                      steering_angle_velocity=0.0, speed=3.0, acceleration=0.0,
                                       jerk=0.0))
             events.append((rx(t), layout.steer_topic, ack_cls.__msgtype__, m))
     for topic, msgtype in layout.extra_topics.items():

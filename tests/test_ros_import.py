@@ -393,3 +393,11 @@ def test_a_tilted_imu_is_said_and_calibrated_away(drive, contract, tmp_path):
     (run,) = load_file(bag, load_vehicle(car))
     _, ref = _on_contract_times(run, contract, drive)
     assert np.max(np.abs(run.ay - ref["ay"])[5:-5]) < 0.01  # the tilt from 600 still samples of noise 0.05
+
+
+def test_a_steering_angle_in_degrees_is_refused_not_fitted(drive, tmp_path):
+    """AckermannDrive's steering_angle is in rad; a publisher that sends degrees (a new user's bag:
+    up to 12.3) was fitted without a word, every parameter at a bound and ay at -88%."""
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(steer_deg=True))
+    with pytest.raises(InputError, match=r"which no road wheel turns in rad .*degrees"):
+        load_file(bag, _vehicle(tmp_path))
