@@ -401,3 +401,15 @@ def test_a_steering_angle_in_degrees_is_refused_not_fitted(drive, tmp_path):
     bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(steer_deg=True))
     with pytest.raises(InputError, match=r"which no road wheel turns in rad .*degrees"):
         load_file(bag, _vehicle(tmp_path))
+
+
+@pytest.mark.parametrize("ros1", [False, True], ids=["ROS 2 MCAP", "ROS 1"])
+def test_a_bag_its_recorder_did_not_close_names_what_rebuilds_it(drive, tmp_path, ros1):
+    """A recorder killed mid-run leaves an MCAP without its end, a ROS 1 bag without its index:
+    the refusal said only 'File end magic is invalid' (a new user's trial); it now names the tool."""
+    bag = rd.write_bag(drive, tmp_path / ("run.bag" if ros1 else "run"), rd.Layout(), ros1=ros1)
+    f = bag if ros1 else next(bag.glob("*.mcap"))
+    data = f.read_bytes()
+    f.write_bytes(data[:len(data) * 2 // 3])
+    with pytest.raises(InputError, match="rosbag reindex" if ros1 else "mcap recover"):
+        load_file(f, _vehicle(tmp_path))

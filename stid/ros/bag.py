@@ -105,7 +105,8 @@ class Bag:
                 reader = AnyReader([self.path], default_typestore=default_typestore(self.kind))
                 reader.open()
         except Exception as e:  # noqa: BLE001 - rosbags' errors for a damaged or cut-short bag
-            raise InputError(f"{self.path} is a {self.label} that does not open: {_first_line(e)}") from None
+            raise InputError(f"{self.path} is a {self.label} that does not open: {_first_line(e)}"
+                             f"{_remedy(self.kind, str(e))}") from None
         self._reader = reader
         self.topics = {}
         for c in reader.connections:
@@ -177,3 +178,16 @@ class Bag:
 def _first_line(e: Exception) -> str:
     text = str(e).strip() or type(e).__name__
     return text.splitlines()[0]
+
+
+def _remedy(kind: str, error: str) -> str:
+    """What rebuilds a bag a recorder did not close (killed, or the disk full): its end or index
+    is missing, the messages before it are there. Empty for other damage."""
+    text = error.lower()
+    if kind == "ros1" and ("index" in text or "header could not be read" in text):
+        return (" (a recording that was not closed: `rosbag reindex` rebuilds its index, and the bag then "
+                "reads up to where it stopped)")
+    if kind == "ros2" and ("magic" in text or "footer" in text or "summary" in text):
+        return (" (a recording that was not closed: its end is missing; `mcap recover FILE -o FIXED.mcap`, the "
+                "mcap command-line tool, rewrites it with what is there)")
+    return ""
