@@ -158,9 +158,10 @@ def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
     return m.T @ (rx.T @ body)  # board = m @ chip, m orthogonal
 
 
-def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = False, sqlite: bool = False) -> Path:
+def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = False, sqlite: bool = False,
+              compress_messages: bool = False) -> Path:
     """The drive as ``ros2 bag record`` (MCAP storage, or SQLite with ``sqlite``) or ``rosbag
-    record`` would hold it."""
+    record`` would hold it; ``compress_messages``: as ``--compression-mode message`` (zstd)."""
     ts = typestore(ros1)
     T = ts.types["builtin_interfaces/msg/Time"]
     H = ts.types["std_msgs/msg/Header"]
@@ -231,8 +232,10 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
         from rosbags.rosbag1 import Writer
         w = Writer(path)
     else:
-        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
         w = Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3 if sqlite else StoragePlugin.MCAP)
+        if compress_messages:
+            w.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
     with w:
         conns = {}
         for _, topic, msgtype, _m in events:

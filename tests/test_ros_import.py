@@ -413,3 +413,15 @@ def test_a_bag_its_recorder_did_not_close_names_what_rebuilds_it(drive, tmp_path
     f.write_bytes(data[:len(data) * 2 // 3])
     with pytest.raises(InputError, match="rosbag reindex" if ros1 else "mcap recover"):
         load_file(f, _vehicle(tmp_path))
+
+
+def test_a_bag_whose_messages_are_compressed_one_by_one_reads_from_its_directory(drive, contract, tmp_path):
+    """ros2 bag record --compression-mode message: the block reader read the compressed bytes as
+    messages and called the bag damaged (a new user's trial). The directory reads as the plain
+    bag; its .mcap alone cannot (only metadata.yaml says the messages are compressed), and says so."""
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(), compress_messages=True)
+    assert "compression_mode: message" in (bag / "metadata.yaml").read_text()
+    (run,) = load_file(bag, _vehicle(tmp_path))
+    _same_data(run, contract, drive)
+    with pytest.raises(InputError, match="give the bag's directory"):
+        load_file(next(bag.glob("*.mcap")), _vehicle(tmp_path))

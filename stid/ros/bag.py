@@ -8,6 +8,7 @@ the magic, and only the ROS 2 one has the ``ros2`` profile and CDR channels.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,6 +88,9 @@ class Bag:
             name = want if isinstance(want, str) else " or ".join(want)
             raise InputError(f"{self.path} holds a {'ROS 1' if self.kind == 'ros1' else 'ROS 2'} bag but is not "
                              f"named {name}: rename it so")
+        if not self.path.is_dir() and self.kind == "ros2" and _messages_compressed(self.path.parent):
+            raise InputError(f"{self.path}: each message in it is compressed on its own (the metadata.yaml beside it "
+                             f"says so, and only it): give the bag's directory, {self.path.parent}")
         self._reader = None
 
     def __enter__(self) -> "Bag":
@@ -154,6 +158,11 @@ class Bag:
         files = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]
         if self.kind != "ros2" or len(files) != 1 or files[0].suffix.lower() != ".mcap":
             return None
+        if _messages_compressed(files[0].parent):
+            # each message compressed on its own (rosbag2's --compression-mode message): rosbags undoes
+            # it; the block reader would read compressed bytes as the message (a new user's bag was
+            # called damaged)
+            return None
         from stid.ros.mcap_blocks import read_topics
 
         return read_topics(files[0], wanted)
@@ -191,3 +200,9 @@ def _remedy(kind: str, error: str) -> str:
         return (" (a recording that was not closed: its end is missing; `mcap recover FILE -o FIXED.mcap`, the "
                 "mcap command-line tool, rewrites it with what is there)")
     return ""
+
+
+def _messages_compressed(bag_dir: Path) -> bool:
+    """rosbag2's metadata.yaml in ``bag_dir`` says each message is compressed on its own."""
+    meta = bag_dir / "metadata.yaml"
+    return meta.is_file() and re.search(r"compression_mode:\s*['\"]?message", meta.read_text(errors="replace")) is not None
