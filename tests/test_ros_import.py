@@ -425,3 +425,26 @@ def test_a_bag_whose_messages_are_compressed_one_by_one_reads_from_its_directory
     _same_data(run, contract, drive)
     with pytest.raises(InputError, match="give the bag's directory"):
         load_file(next(bag.glob("*.mcap")), _vehicle(tmp_path))
+
+
+@pytest.mark.parametrize("mounted", [("x", "-y", "-z"), ("z", "y", "-x"), ("x", "-z", "y")],
+                         ids=["upside down", "on its side about y", "on its side about x"])
+def test_gravity_off_plus_z_is_refused_with_the_imu_axes_that_put_it_up(drive, tmp_path, mounted):
+    """An IMU mounted upside down or on its side: the refusal said only that the mounting is declared
+    wrong (a new user's trial). It now gives the imu_axes that put gravity up, and they read."""
+    import re
+
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(imu_to_body=mounted))
+    with pytest.raises(InputError, match="imu_axes = ") as e:
+        load_file(bag, _vehicle(tmp_path))
+    axes = re.search(r"imu_axes = (\[[^]]*\]) puts it up", str(e.value)).group(1)
+    (run,) = load_file(bag, _vehicle(tmp_path, f"[ros]\nimu_axes = {axes}\n"))
+    assert run.meta["format"] == "ros"
+
+
+def test_a_topic_stamped_by_its_own_clock_points_to_receive_times(drive, tmp_path):
+    """An IMU driver stamping by the time since its boot: the topics 'do not overlap', and the
+    refusal now says what times them all (a new user's trial)."""
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(stamp_offset_s={"/sensors/imu/raw": -rd.EPOCH_NS * 1e-9}))
+    with pytest.raises(InputError, match='do not overlap.*stamps = "receive"'):
+        load_file(bag, _vehicle(tmp_path))

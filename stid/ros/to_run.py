@@ -106,8 +106,13 @@ def _grid(times, imu, rate, where) -> np.ndarray:
     t1 = min(t[-1] for t in times.values())
     if t1 - t0 < MIN_SAMPLES / rate:
         spans = ", ".join(f"{topic} {t[0]:.2f}-{t[-1]:.2f} s" for topic, t in times.items())
+        starts = sorted(t[0] for t in times.values())
+        other_clock = starts[-1] - starts[0] > 86400.0  # a day apart: a driver stamps by its own clock (its boot)
         raise InputError(f"{where}: the topics do not overlap in time ({spans}, from the bag's first stamp): a run "
-                         "needs the IMU, the odometry and the steering command at once")
+                         "needs the IMU, the odometry and the steering command at once"
+                         + ("; their stamps are days apart, as when a driver stamps by its own clock (time since its "
+                            "boot): [ros] stamps = \"receive\" times every topic by the bag's receive times"
+                            if other_clock else ""))
     imu_t = times[imu]
     t0 = float(imu_t[np.searchsorted(imu_t, t0 - 1e-9)])
     return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
@@ -216,9 +221,11 @@ def _body_axes(acc, gyro, table, vehicle, where, notes):
         axis = int(np.argmax(np.abs(mean)))
         if axis != 2 or mean[2] < 0:
             seen = f"{'-' if mean[axis] < 0 else '+'}{'xyz'[axis]}"
-            raise InputError(f"{where}: gravity is on the car's {seen} axis after [ros] imu_axes "
-                             f"{table.get('imu_axes', ['x', 'y', 'z'])}: it must be on +z (z up); the IMU's "
-                             "mounting is declared wrong, see docs/ros.md")
+            rows = list(table.get("imu_axes", ["x", "y", "z"]))
+            fixed = ", ".join(f'"{a}"' for a in _gravity_up(rows, seen))
+            raise InputError(f"{where}: gravity is on the car's {seen} axis after [ros] imu_axes {rows}: it must be on "
+                             f"+z (z up); the IMU's mounting is declared wrong: imu_axes = [{fixed}] puts it up (if x "
+                             "is then not forward, stid says how to turn it about z; docs/ros.md)")
         roll = float(vehicle.sensors.get("mount_roll", 0.0)) if vehicle is not None else 0.0
         pitch = float(vehicle.sensors.get("mount_pitch", 0.0)) if vehicle is not None else 0.0
         if roll or pitch:
@@ -234,6 +241,18 @@ def _body_axes(acc, gyro, table, vehicle, where, notes):
         raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} m/s^2 on average: neither gravity "
                          "(9.81) nor gravity removed (0); check [ros] accel_unit")
     return acc, gyro
+
+
+def _gravity_up(rows: list, seen: str) -> list:
+    """The imu_axes that turn ``rows`` (the declared ones) so that gravity, now on the car's
+    ``seen`` axis, is on +z: the one quarter or half turn about x or y that does it (right-handed)."""
+    def flip(a):
+        return a[1:] if a.startswith("-") else "-" + a
+
+    x, y, z = rows
+    return {"-z": [x, flip(y), flip(z)],  # upside down: half a turn about x
+            "+x": [flip(z), y, x], "-x": [z, y, flip(x)],  # a quarter turn about y
+            "+y": [x, flip(z), y], "-y": [x, z, flip(y)]}[seen]  # a quarter turn about x
 
 
 def _check_turned(run, table, where) -> None:
