@@ -183,7 +183,7 @@ def diagnose_round(runs, vehicle, model_name: str = "bicycle", progress=None, ba
     # tanh) had a locked_diff named for 0.6 fit points in 5 of 7 pairs. A name there needs runs at two
     # steer amplitudes, across which the evidence check then holds its parameter to one value.
     above = above_floor(base.fit, floor, floor_se)
-    amplitudes = "amplitude" in partitions(stretches)
+    amplitudes = bool(above) and "amplitude" in partitions(stretches)  # (asked only where it decides)
     for c in to_fit:
         # it must gain at least MIN_GAIN points, and a quarter of the gap to the noise floor
         # where there is one (a nonlinear effect can beat the linear floor: then MIN_GAIN decides)

@@ -29,6 +29,7 @@ import numpy as np
 from stid.errors import InputError
 
 MAX_ROAD_WHEEL_RAD = 0.6
+NOT_RADIANS = 1.0  # rad (57 deg): no road wheel turns so far; a steering signal beyond it is in other units
 RAD_GAIN = (1 / 1.5, 1.5)  # the map a column in rad shows from the kinematics (noise, servo and linkage)
 STRAIGHT_TRIM_RAD = 0.2  # 11 deg: far beyond any trim, far inside 0.5 of a 0-1 command
 PULSE_US = (500.0, 2600.0)  # RC servo pulse widths (1000-2000 us standard, 500-2500 extended)
@@ -87,7 +88,7 @@ def road_wheel_angle(x, r, vx, ay, fs, vehicle, where: str, what: str = "steer")
                          f"in rad (that is ~0 there); if it is a servo command, declare its map: [steering] offset = "
                          f"{centre:.3g} and gain = the command change per rad")
     peak = float(np.max(np.abs(x)))
-    if peak > 1.0:
+    if peak > NOT_RADIANS:
         raise InputError(not_radians(where, what, peak) + "; declare its map: [steering] offset = 0 and gain = "
                          "57.2958 if it is in degrees (the command per rad)")
     if MAX_ROAD_WHEEL_RAD < peak <= 1.0:

@@ -136,12 +136,12 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     # the servo holds each command until the next: held, not interpolated
     sig["steer"] = command[np.clip(np.searchsorted(st_t, grid, side="right") - 1, 0, len(st_t) - 1)]
     peak = float(np.max(np.abs(sig["steer"]))) if len(sig["steer"]) else 0.0
-    if choice.steering_type == ACKERMANN and peak > 1.0:  # (a new user's bag in degrees was fitted to -88% ay)
-        from stid.steer_units import not_radians
+    from stid.steer_units import NOT_RADIANS, not_radians
 
-        raise InputError(not_radians(where, choice.steering, peak) + " AckermannDrive's steering_angle is in rad: "
-                         "have its publisher send rad, or export the bag's topics to CSV (docs/ros.md) and declare "
-                         "the map in [steering]")
+    if choice.steering_type == ACKERMANN and peak > NOT_RADIANS:  # (a new user's bag in degrees: fitted to -88% ay)
+        raise InputError(not_radians(where, choice.steering, peak) + " AckermannDrive's steering_angle is in rad "
+                         "(REP 103): have its publisher send rad; a run kept as per-topic CSVs (docs/ros.md) can be "
+                         "read in rad with [ros.fields] \"drive.steering_angle\" = \"<its column> * 0.0174533\"")
     if choice.steering_type == FLOAT64:
         from stid.steer_units import road_wheel_angle
 
