@@ -557,6 +557,13 @@ def main(argv=None) -> int:
 
 
 def main_here(argv=None) -> int:
+    from stid.interrupts import interrupts_kept
+
+    with interrupts_kept():  # (a Ctrl-C that lands where Python drops exceptions: a fork's handlers)
+        return _main_here(argv)
+
+
+def _main_here(argv=None) -> int:
     ap = build_parser()
     args, extra = ap.parse_known_args(argv)
     if extra:  # said by the command it was given to ("stid fit: error: ..."), with its usage

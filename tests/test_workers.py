@@ -159,3 +159,32 @@ def test_a_pool_ended_with_a_cancelled_job_waiting_ends_without_a_traceback():
     assert out.returncode == 0 and out.stdout.strip() == "ended", out.stderr
     assert "Traceback" not in out.stderr and "Exception in thread" not in out.stderr, out.stderr
     assert time.perf_counter() - t0 < 20  # the 30 s jobs were not waited for
+
+
+_LOST_IN_A_FORK = r"""
+import os, sys
+lost = []
+
+def lose():  # a Ctrl-C that lands in an after-fork handler (logging's, in the suite), once
+    if not lost:
+        lost.append(1)
+        raise KeyboardInterrupt
+
+os.register_at_fork(after_in_parent=lose)
+from stid.cli import main_here
+sys.exit(main_here(sys.argv[1:]))
+"""
+
+
+def test_a_ctrl_c_that_lands_in_a_fork_handler_still_ends_the_command():
+    """Python drops an exception raised in an after-fork handler ("Exception ignored in"): a
+    served `stid diagnose --peel` interrupted while its pool forked ran on to its end and exited
+    0 (CI, stop 32). The command (the real log's diagnosis, whose pool forks) now ends with 130."""
+    from conftest import REPO
+
+    real = REPO / "tests" / "fixtures" / "real" / "frictionmaps"
+    out = subprocess.run([sys.executable, "-c", _LOST_IN_A_FORK, "diagnose", "ds3.csv", "--vehicle", "vehicle.toml"],
+                         capture_output=True, text=True, timeout=120, cwd=real)
+    assert out.returncode == 130, out.stderr[-2000:]
+    assert out.stderr.strip().endswith("interrupted") and "Exception ignored" not in out.stderr, out.stderr[-2000:]
+    assert out.stdout == "", "the diagnosis ran on to print its result"
