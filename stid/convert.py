@@ -10,6 +10,7 @@ import numpy as np
 
 from host import units
 from stid import segments
+from stid.held_command import interval_means
 from stid.vehicle_file import Vehicle
 
 G = units.G
@@ -139,17 +140,8 @@ def steer_at_servo_times(t_mcu_us: np.ndarray, t_raw_us: np.ndarray, steer_us: n
         return None, False
     c = (w - vehicle.steer_center_us) / vehicle.steer_us_per_rad
     f, c = _fill_lost_pulses(f, c, receiver_period_us(f - w))
-    # cumulative integral of the staircase at the events; value held after the last one,
-    # and the first command extended back to the start
-    cum = np.concatenate([[0.0], np.cumsum(c[:-1] * np.diff(f))])
-
-    def integral(t):
-        j = np.clip(np.searchsorted(f, t, side="right") - 1, 0, len(f) - 1)
-        return cum[j] + c[j] * (t - f[j])
-
     g = np.asarray(grid_us, float)
-    h = float(step_us)
-    steer = (integral(g + h / 2) - integral(g - h / 2)) / h
+    steer = interval_means(f, c, g, float(step_us))
     # no pulse for longer than the receiver's timeout at a sample: NaN there, as before
     no_pulse = np.interp(g, np.asarray(t_mcu_us, float), (~(us > 0)).astype(float)) > 0.5
     return np.where(no_pulse, np.nan, steer), True
