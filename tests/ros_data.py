@@ -2,8 +2,11 @@
 record, written with rosbags' own writers (ROS 2 MCAP and ROS 1).
 
 The car is a linear single-track model written here (not stid's), integrated at 1 kHz
-with RK4; the steering command is held between the 50 Hz commands, as a servo holds it.
-The run stands still for 3 s, speeds up to ~3 m/s, then is steered at random.
+with RK4; the steering command is held between the 50 Hz commands, as a servo holds it
+(and the road wheel follows it through the servo's first-order lag, with ``servo_tau``).
+The run stands still for 3 s, speeds up to ~3 m/s, then is steered at random. The IMU
+samples ``imu_offset_ms`` after each command's instant (not on it: a car's clocks are not
+locked to each other).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ BASE_HZ = 1000
 # the VESC's servo map on an F1TENTH car (f1tenth_system vesc.yaml): servo = gain * angle + offset
 SERVO_GAIN, SERVO_OFFSET = -1.2135, 0.5304
 EPOCH_NS = 1_700_000_000_000_000_000  # header stamps are wall-clock time
+RECEIVE_MS = 1.25  # each message reaches the recorder this long after it was measured (whole quarters of a ms)
 
 
 @dataclass
@@ -28,7 +32,7 @@ class Drive:
     """The truth at 1 kHz and what each sensor measured at its own instants."""
 
     t: np.ndarray
-    steer: np.ndarray  # road-wheel angle [rad] (the held command)
+    steer: np.ndarray  # the held command [rad], on [t, t + 1 ms) (the road-wheel angle without a servo lag)
     vx: np.ndarray
     ay: np.ndarray
     r: np.ndarray
@@ -40,9 +44,11 @@ class Drive:
     imu_ax: np.ndarray = field(default=None)
     imu_r: np.ndarray = field(default=None)
     odom_vx: np.ndarray = field(default=None)
+    wheel: np.ndarray = field(default=None)  # the road-wheel angle [rad] at each t (steer through the servo)
 
 
-def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.06, noise=True) -> Drive:
+def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.06, noise=True,
+          imu_offset_ms=2, servo_tau=0.0) -> Drive:
     rng = np.random.default_rng(seed)
     n = int(duration * BASE_HZ)
     t = np.arange(n) / BASE_HZ
@@ -52,10 +58,18 @@ def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.
     raw = rng.standard_normal(len(cmd_t) + 20)
     smooth = np.convolve(raw, np.ones(6) / 6, mode="same")[10:-10]
     cmd = np.where(cmd_t >= 6.0, smooth / smooth.std() * steer_rms, 0.0)
-    steer = cmd[np.clip(np.searchsorted(cmd_t, t, side="right") - 1, 0, len(cmd) - 1)]
-    vy, r, ay = _integrate(t, vx, steer)
-    d = Drive(t=t, steer=steer, vx=vx, ay=ay, r=r, cmd_t=cmd_t, cmd=cmd)
-    d.imu_k = np.arange(2, n, BASE_HZ // imu_hz)  # the IMU 2 ms off the command's instants
+    # held from each command's millisecond on (whole milliseconds: the staircase is exact at 1 kHz)
+    steer = cmd[np.searchsorted(np.round(cmd_t * BASE_HZ).astype(int), np.arange(n), side="right") - 1]
+    wheel = steer
+    if servo_tau > 0:  # the servo's first-order lag, exact for an input held over each millisecond
+        wheel = np.empty(n)
+        w, keep = 0.0, math.exp(-1.0 / (BASE_HZ * servo_tau))
+        for k in range(n):
+            wheel[k] = w
+            w = steer[k] + (w - steer[k]) * keep
+    vy, r, ay = _integrate(t, vx, wheel, continuous=servo_tau > 0)
+    d = Drive(t=t, steer=steer, vx=vx, ay=ay, r=r, cmd_t=cmd_t, cmd=cmd, wheel=wheel)
+    d.imu_k = np.arange(imu_offset_ms, n, BASE_HZ // imu_hz)  # the IMU off the command's instants
     d.odom_k = np.arange(7, n, BASE_HZ // odom_hz)
     s = 1.0 if noise else 0.0
     d.imu_ay = ay[d.imu_k] + s * 0.05 * rng.standard_normal(len(d.imu_k))
@@ -65,8 +79,9 @@ def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.
     return d
 
 
-def _integrate(t, vx, steer):
-    """vy, r, ay of the linear single-track model (RK4, steer held over each step)."""
+def _integrate(t, vx, steer, continuous=False):
+    """vy, r, ay of the linear single-track model (RK4; steer held over each step, or with
+    ``continuous`` a line from its value at the step's start to the next)."""
     dt = 1.0 / BASE_HZ
     n = len(t)
     vy_out, r_out, ay_out = np.zeros(n), np.zeros(n), np.zeros(n)
@@ -79,24 +94,39 @@ def _integrate(t, vx, steer):
 
     for k in range(n):
         v, d = float(vx[k]), float(steer[k])
+        d1 = float(steer[min(k + 1, n - 1)]) if continuous else d
         if v < 0.3:  # standing (or barely rolling) and not steered: nothing moves sideways
             vy = r = 0.0
             continue
         k1 = deriv(vy, r, v, d)
-        k2 = deriv(vy + 0.5 * dt * k1[0], r + 0.5 * dt * k1[1], v, d)
-        k3 = deriv(vy + 0.5 * dt * k2[0], r + 0.5 * dt * k2[1], v, d)
-        k4 = deriv(vy + dt * k3[0], r + dt * k3[1], v, d)
+        k2 = deriv(vy + 0.5 * dt * k1[0], r + 0.5 * dt * k1[1], v, 0.5 * (d + d1))
+        k3 = deriv(vy + 0.5 * dt * k2[0], r + 0.5 * dt * k2[1], v, 0.5 * (d + d1))
+        k4 = deriv(vy + dt * k3[0], r + dt * k3[1], v, d1)
         vy_out[k], r_out[k], ay_out[k] = vy, r, k1[2]
         vy += dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
         r += dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
     return vy_out, r_out, ay_out
 
 
+def sample_means(d: Drive, k: np.ndarray, period_ms: float, late_ms: float = 0.0) -> np.ndarray:
+    """The held command's mean over the sample period centred on each instant ``t[k]``, as the
+    contract asks of a held command (docs/ros.md); ``late_ms``: of the staircase as timed that
+    much late (a topic timed by its receive times). Counted here in quarter milliseconds: the
+    staircase steps only on whole ones and the periods' ends (+-2.5 ms at 200 Hz, 5 ms at 100 Hz)
+    and the delays fall on quarters, so each quarter is one value and the mean is exact."""
+    quarters, late = int(round(period_ms * 4)), int(round(late_ms * 4))
+    assert abs(quarters - period_ms * 4) < 1e-9 and abs(late - late_ms * 4) < 1e-9, "not whole quarters of a ms"
+    at = k[:, None] * 4 - late - quarters / 2 + 0.5 + np.arange(quarters)[None, :]  # quarter midpoints
+    ms = np.clip(np.floor(at / 4).astype(int), 0, len(d.steer) - 1)
+    return d.steer[ms].mean(axis=1)
+
+
 def contract_csv(d: Drive, path: Path) -> Path:
-    """The same measurements as the import contract's CSV: on the IMU's instants, the command
-    held, the odometry's speed interpolated."""
+    """The same measurements as the import contract's CSV: on the IMU's instants, the held
+    command's mean over each sample period, the odometry's speed interpolated."""
     t = d.t[d.imu_k]
-    cols = {"t": t, "steer": d.steer[d.imu_k], "ay": d.imu_ay, "r": d.imu_r,
+    period_ms = float(np.median(np.diff(d.imu_k))) * 1000 / BASE_HZ
+    cols = {"t": t, "steer": sample_means(d, d.imu_k, period_ms), "ay": d.imu_ay, "r": d.imu_r,
             "vx": np.interp(t, d.t[d.odom_k], d.odom_vx)}
     np.savetxt(path, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="",
                fmt="%.9g")
@@ -185,7 +215,7 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
 
     zero9, zero36 = np.zeros(9), np.zeros(36)
     events = []  # (receive ns, topic, msgtype, message)
-    rx = lambda t: EPOCH_NS + int(round((t + 0.0013) * 1e9))  # noqa: E731 - received 1.3 ms after measured
+    rx = lambda t: EPOCH_NS + int(round((t + RECEIVE_MS / 1000) * 1e9))  # noqa: E731 - the recorder's time
     t_imu = d.t[d.imu_k]
     body_acc = np.vstack([d.imu_ax, d.imu_ay, np.full(len(t_imu), G if layout.gravity else 0.0)])
     body_gyro = np.vstack([np.zeros(len(t_imu)), np.zeros(len(t_imu)), d.imu_r + layout.gyro_bias])

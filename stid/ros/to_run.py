@@ -15,6 +15,7 @@ import numpy as np
 
 from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
+from stid.held_command import interval_means
 from stid.ros import topic_map
 from stid.ros.bag import Bag
 from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
@@ -133,8 +134,9 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
     st_t = times[choice.steering]
     command = cols[choice.steering]["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
-    # the servo holds each command until the next: held, not interpolated
-    sig["steer"] = command[np.clip(np.searchsorted(st_t, grid, side="right") - 1, 0, len(st_t) - 1)]
+    # the servo holds each command until the next: the staircase's mean over each sample period, which
+    # the models' input (lines between samples) puts at its own time (stid.held_command)
+    sig["steer"] = interval_means(st_t, command, grid, 1.0 / rate)
     peak = float(np.max(np.abs(sig["steer"]))) if len(sig["steer"]) else 0.0
     from stid.steer_units import NOT_RADIANS, not_radians
 

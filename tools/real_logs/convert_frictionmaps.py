@@ -13,8 +13,9 @@ than from the dataset README, which gets the IMU units wrong:
   particle filter's heading: correlation 0.96-0.99, slope 1.01-1.07 over DS1, DS3-DS5).
 - ``commandData.csv`` (``/ackermann_cmd``): ``delta`` is the Ackermann steering command in
   rad, left positive (REP 103), clipped at +-0.34 rad. It is the COMMAND to the servo, not
-  a measured wheel angle; the VESC holds the last value, so it is held here too (previous
-  value, not interpolated).
+  a measured wheel angle; the VESC holds the last value until the next, so each sample is
+  that staircase's mean over the sample period centred on it (stid.held_command: the value
+  at the instant would move every step by up to half a sample, here 17 ms).
 - ``odomData.csv`` (``/odom``, VESC odometry): ``vx`` from the motor's electrical RPM and a
   speed-to-ERPM gain: wheel speed, with the drive's slip in it. Its logged yaw-rate
   columns are copies of the linear velocity (a bug in the logger) and are not used.
@@ -23,7 +24,7 @@ than from the dataset README, which gets the IMU units wrong:
   can check a yaw-rate bias against a measurement the identifier never sees.
 
 All channels are put on one uniform grid at the IMU's median period (linear interpolation
-of the sensors, zero-order hold of the command), over the span every topic covers.
+of the sensors, the held command's mean over each sample period), over the span every topic covers.
 
 Usage: python tools/real_logs/convert_frictionmaps.py DataSets/DS1 OUT.csv
 """
@@ -36,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from stid.held_command import interval_means
 
 G0 = 9.80665  # m/s^2 per g: the VESC reports accelerations in g
 DEG = np.pi / 180.0
@@ -72,18 +75,20 @@ def convert(folder: Path) -> pd.DataFrame:
     def lin(df, col):
         return np.interp(t, df["t"].to_numpy(), df[col].to_numpy(float))
 
-    held = np.searchsorted(cmd["t"].to_numpy(), t, side="right") - 1  # last command sent by t
+    def held(col):  # the command's mean over each sample period: at its own time under stid's input
+        return interval_means(cmd["t"].to_numpy(), cmd[col].to_numpy(float), t, period)  # (stid.held_command)
+
     psi = heading_from_quaternion(*(pose[c].to_numpy(float) for c in ("q.x", "q.y", "q.z", "q.w")))
 
     return pd.DataFrame({
         "t": t - t[0],
-        "steer": cmd["delta"].to_numpy(float)[held],
+        "steer": held("delta"),
         "ay": lin(imu, "ax") * G0,
         "r": lin(imu, "wz") * DEG,
         "vx": lin(odom, "vx"),
         "ax": -lin(imu, "ay") * G0,
         "psi_pf": np.interp(t, pose["t"].to_numpy(), psi),
-        "v_cmd": cmd["V"].to_numpy(float)[held],
+        "v_cmd": held("V"),
     })
 
 
