@@ -121,13 +121,18 @@ def sample_means(d: Drive, k: np.ndarray, period_ms: float, late_ms: float = 0.0
     return d.steer[ms].mean(axis=1)
 
 
-def contract_csv(d: Drive, path: Path) -> Path:
-    """The same measurements as the import contract's CSV: on the IMU's instants, the held
-    command's mean over each sample period, the odometry's speed interpolated."""
+def contract_columns(d: Drive) -> dict:
+    """The import contract's columns: on the IMU's instants, the held command's mean over each
+    sample period, the odometry's speed interpolated."""
     t = d.t[d.imu_k]
     period_ms = float(np.median(np.diff(d.imu_k))) * 1000 / BASE_HZ
-    cols = {"t": t, "steer": sample_means(d, d.imu_k, period_ms), "ay": d.imu_ay, "r": d.imu_r,
+    return {"t": t, "steer": sample_means(d, d.imu_k, period_ms), "ay": d.imu_ay, "r": d.imu_r,
             "vx": np.interp(t, d.t[d.odom_k], d.odom_vx)}
+
+
+def contract_csv(d: Drive, path: Path) -> Path:
+    """The same measurements as the import contract's CSV (``contract_columns``)."""
+    cols = contract_columns(d)
     np.savetxt(path, np.column_stack(list(cols.values())), delimiter=",", header=",".join(cols), comments="",
                fmt="%.9g")
     return path

@@ -26,10 +26,7 @@ def contract(drive, tmp_path_factory):
 
 
 def _columns(drive):
-    k = drive.imu_k
-    t = drive.t[k]
-    return {"t": t, "steer": drive.steer[k], "ay": drive.imu_ay, "r": drive.imu_r,
-            "vx": np.interp(t, drive.t[drive.odom_k], drive.odom_vx)}
+    return rd.contract_columns(drive)
 
 
 def _write(path, cols, sep=",", decimal="."):
