@@ -133,6 +133,8 @@ class Diagnosis:
                "params": {n: d for n, d in res.params_json().items() if n in res.names},
                "noise_floor": {k: round(v, 2) for k, v in self.floor.items()},
                "noise_floor_stderr": {k: round(v, 3) for k, v in self.floor_se.items()},
+               # fit points above the floor, per output where beyond chance: then nothing more is named
+               "above_floor": above_floor(res.fit, self.floor, self.floor_se),
                "effective_samples": round(self.n_eff),
                "named": self.named,
                "candidates": [c.to_json() for c in self.candidates]}

@@ -442,6 +442,13 @@ def test_above_the_floor_a_small_gain_from_one_steer_amplitude_is_not_named(simd
     refused = [c for c in last.candidates if "fits above the noise floor" in c.why_not]
     assert refused and all("second steer amplitude" in c.why_not for c in refused), \
         [(c.effect, c.why_not) for c in last.candidates]
+    # and the live view's one line, read from this round's --json, does not say "nothing missing"
+    import json
+
+    from stid.live.diagnosis import verdict
+
+    line = verdict(json.dumps(last.to_json()), 60.0)
+    assert "fits above the noise floor (ay" in line and "nothing missing" not in line, line
 
 
 def test_an_effect_whose_own_interval_holds_its_absence_is_not_shown():

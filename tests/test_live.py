@@ -239,6 +239,20 @@ def test_the_diagnosis_verdict_says_an_error_no_effect_explains():
     assert "nothing missing from bicycle" in verdict(json.dumps(doc), 40.0) and not unexplained(json.dumps(doc))
 
 
+def test_the_diagnosis_verdict_of_a_model_above_its_noise_floor_claims_nothing():
+    """Tyres deep in saturation: bicycle+tyre_saturation fits ay 98.5% where the floor reads 94.7%
+    +- 0.96. diagnose then names nothing more and says why; the live line said "nothing missing ...
+    that these data show", which the data cannot say. (test_diagnose reads this line from a real
+    diagnosis of such tyres.)"""
+    from stid.live.diagnosis import verdict
+
+    doc = {"model": "bicycle+tyre_saturation", "named": [], "candidates": [], "fit": {"ay": 98.5, "r": 99.0},
+           "noise_floor": {"ay": 94.7, "r": 98.8}, "noise_floor_stderr": {"ay": 0.96, "r": 0.3},
+           "above_floor": {"ay": 3.8}}
+    text = verdict(json.dumps(doc), 40.0)
+    assert "fits above the noise floor (ay)" in text and "nothing missing" not in text, text
+
+
 def test_no_done_before_the_diagnosis_has_answered(car, tmp_path):
     """A trial run: 12 s of a car with a servo lag and an offset accelerometer, watched with
     bicycle+actuator_lag and loose targets, printed done with every interval off the truth while

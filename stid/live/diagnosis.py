@@ -107,6 +107,9 @@ def verdict(output: str, driving_s: float) -> str | None:
                              for o in ("ay", "r") if o in doc.get("fit", {}) and o in doc.get("noise_floor", {}))
             return (f"diagnosis: {model} misses something no effect of the catalogue explains"
                     f"{' (' + gaps + ')' if gaps else ''}; stid diagnose on the file says what is left {at}")
+        if doc.get("above_floor"):  # (the floor is then no reference: stid.analysis.noise_floor.above_floor)
+            return (f"diagnosis: nothing more named: {model} fits above the noise floor "
+                    f"({', '.join(doc['above_floor'])}), which then cannot say whether something is still missing {at}")
         return f"diagnosis: nothing missing from {model} that these data show {at}"
     shown = {}
     for c in doc["candidates"]:
