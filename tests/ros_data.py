@@ -179,6 +179,7 @@ class Layout:
     nan_at: int | None = None  # an IMU message whose ay is NaN (a driver's failed read)
     extra_topics: dict = field(default_factory=dict)  # topic -> msgtype, a few messages each
     steer_deg: bool = False  # the Ackermann steering_angle published in degrees (a driver's mistake)
+    imu_silent_s: tuple = ()  # (from, to) [s]: the IMU driver published nothing then (it stalled)
 
 
 def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
@@ -230,6 +231,8 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
     if layout.nan_at is not None:
         acc[1, layout.nan_at] = np.nan
     for k, t in enumerate(t_imu):
+        if layout.imu_silent_s and layout.imu_silent_s[0] <= t < layout.imu_silent_s[1]:
+            continue
         # a stamp that goes back (a clock step in the driver): received in its place all the same
         stamp_t = t - 0.012 if k == layout.backwards_at else t
         m = imu_cls(header=header(stamp_t, "imu_link", layout.imu_topic), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),

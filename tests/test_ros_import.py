@@ -130,6 +130,19 @@ def test_receive_times_when_header_stamps_go_back(drive, contract, tmp_path):
     assert np.max(np.abs(run.ay[inside] - np.interp(t_true, t_csv, contract.ay)[inside])) < 1e-6
 
 
+def test_a_piece_after_an_imu_silence_takes_the_gyro_zero_of_the_bag(drive, contract, tmp_path):
+    """The IMU driver stalls for a second mid-drive: the bag is read as two runs, and the second
+    never stands still. Its gyro zero is the first piece's (one IMU, one recording); it was left
+    as the IMU gives it, a 0.02 rad/s bias in every fit of it."""
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(gyro_bias=0.02, imu_silent_s=(12.0, 13.0)))
+    first, second = load_file(bag, _vehicle(tmp_path))
+    assert first.meta["gyro_bias"] == pytest.approx(0.02, abs=0.001)
+    assert second.meta["gyro_bias"] == first.meta["gyro_bias"]
+    assert f"from the stand-still of {first.name}" in " ".join(second.meta["notes"])
+    assert not any("never stands still" in w for w in second.meta.get("warnings", []))
+    _same_data(second, contract, drive)
+
+
 # (IMU rate, the IMU's instants after each command's [ms]): the value at the sample instant moved
 # each step by -2.5, +0.5, -4 and +1 ms of these
 PHASES = [(200, 0), (200, 3), (100, 1), (100, 6)]

@@ -75,6 +75,8 @@ def load_bag(path, vehicle) -> list[Run]:
         for w in warnings:
             run.warn(w)
         _gyro_zero(run)
+    _share_gyro_zero(runs)
+    for run in runs:
         _check(run, table, where)
     return runs
 
@@ -371,8 +373,29 @@ def _gyro_zero(run) -> None:
     convert.set_gyro_zero(run, zero, "this run's stand-still")
     bias = run.meta["gyro_bias"]
     if bias is None:
-        run.warn("the run never stands still: the gyro's zero is taken as the IMU gives it (start runs with ~2 s "
-                 "standing still)")
         return
     run.r = run.r - bias
     run.meta.setdefault("notes", []).append(f"gyro zero {bias:+.4f} rad/s, from the stand-still, taken off r")
+
+
+def _share_gyro_zero(runs) -> None:
+    """A piece cut off by a silence (an IMU driver that stalled, a clock that jumped) has no
+    stand-still of its own; the zero from the nearest piece of the same bag that has one holds
+    for it (one IMU, one recording; stid.load does the same for the pieces of a logged run).
+    Left as the IMU gives it, a gyro bias of 0.02 rad/s stayed in the second piece."""
+    donors = [d for d in runs if d.meta.get("gyro_bias") is not None]
+    for run in runs:
+        if run.meta.get("gyro_bias") is not None:
+            continue
+        if not donors:
+            run.warn("the run never stands still: the gyro's zero is taken as the IMU gives it (start runs with ~2 s "
+                     "standing still)")
+            continue
+        start = run.meta["stamp0_ns"]
+        donor = min(donors, key=lambda d: abs(d.meta["stamp0_ns"] - start))
+        bias = donor.meta["gyro_bias"]
+        run.r = run.r - bias
+        convert.set_gyro_zero(run, donor.meta["gyro_zero"], f"the stand-still of {donor.name} (same bag)")
+        away = abs(donor.meta["stamp0_ns"] - start) * 1e-9
+        run.meta.setdefault("notes", []).append(f"gyro zero {bias:+.4f} rad/s, from the stand-still of {donor.name} "
+                                                f"({away:.0f} s apart in this bag), taken off r")
