@@ -143,6 +143,17 @@ def test_a_piece_after_an_imu_silence_takes_the_gyro_zero_of_the_bag(drive, cont
     _same_data(second, contract, drive)
 
 
+def test_a_grid_slower_than_the_imu_is_said(plain_bag, tmp_path):
+    """[ros] rate_hz = 20 for a 200 Hz IMU reads the IMU at 20 Hz, unfiltered: what it measured above
+    10 Hz aliases into the run. It was taken without a word."""
+    (run,) = load_file(plain_bag, _vehicle(tmp_path, "[ros]\nrate_hz = 20\n"))
+    assert run.fs == pytest.approx(20.0)
+    said = [w for w in run.meta.get("warnings", []) if "rate_hz = 20 is below the IMU's 200 Hz" in w]
+    assert said and "leave rate_hz out" in said[0], run.meta.get("warnings")
+    (run,) = load_file(plain_bag, _vehicle(tmp_path, "[ros]\nrate_hz = 200\n"))
+    assert not any("rate_hz" in w for w in run.meta.get("warnings", []))
+
+
 # (IMU rate, the IMU's instants after each command's [ms]): the value at the sample instant moved
 # each step by -2.5, +0.5, -4 and +1 ms of these
 PHASES = [(200, 0), (200, 3), (100, 1), (100, 6)]

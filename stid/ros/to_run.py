@@ -43,9 +43,15 @@ def load_bag(path, vehicle) -> list[Run]:
     # seconds from the first stamp: epoch nanoseconds as float64 would keep only ~0.2 us
     origin = min(int(t[0]) for t in stamps_ns.values())
     times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
-    rate = float(table.get("rate_hz") or 0.0) or 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
+    imu_rate = 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
+    rate = float(table.get("rate_hz") or 0.0) or imu_rate
     grid = _grid(times, choice.imu, rate, where)
     warnings = []
+    if rate < 0.95 * imu_rate:  # (a user's rate_hz = 20 for a 200 Hz IMU was taken without a word)
+        warnings.append(f"[ros] rate_hz = {rate:g} is below the IMU's {imu_rate:.0f} Hz: the IMU is read at "
+                        f"{rate:g} Hz without a filter against aliasing, so what it measured above {rate / 2:g} Hz "
+                        "(noise, the motor's vibration) folds into the run; leave rate_hz out to use the IMU's own "
+                        "rate")
     sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
