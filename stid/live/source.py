@@ -86,7 +86,7 @@ class Source:
     def _read_other(self) -> Snapshot:
         """A ROS bag (or a CSV): the loader's runs once it can read them; a ROS 2 bag still
         being recorded through a finished copy of its complete chunks."""
-        from stid.live.ros_recording import being_recorded, readable_copy
+        from stid.ros.unclosed import being_recorded, readable_copy
         from stid.load import load_runs
 
         path = self.path

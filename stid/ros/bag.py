@@ -36,7 +36,11 @@ def kind_of(path) -> str | None:
     SQLite file) or None (not a ROS bag: a stid-log MCAP, a CSV, ...)."""
     path = Path(path)
     if path.is_dir():
-        return "ros2" if (path / "metadata.yaml").is_file() else None
+        if (path / "metadata.yaml").is_file():
+            return "ros2"
+        # rosbag2 writes metadata.yaml when it stops: a killed recorder's directory has its .mcap alone
+        inside = sorted(path.glob("*.mcap"))
+        return "ros2" if len(inside) == 1 and kind_of(inside[0]) == "ros2" else None
     try:
         with open(path, "rb") as f:
             head = f.read(16)
@@ -88,7 +92,7 @@ class Bag:
             name = want if isinstance(want, str) else " or ".join(want)
             raise InputError(f"{self.path} holds a {'ROS 1' if self.kind == 'ros1' else 'ROS 2'} bag but is not "
                              f"named {name}: rename it so")
-        if not self.path.is_dir() and self.kind == "ros2" and _messages_compressed(self.path.parent):
+        if not self.path.is_dir() and self.kind == "ros2" and messages_compressed(self.path.parent):
             raise InputError(f"{self.path}: each message in it is compressed on its own (the metadata.yaml beside it "
                              f"says so, and only it): give the bag's directory, {self.path.parent}")
         self._reader = None
@@ -158,7 +162,7 @@ class Bag:
         files = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]
         if self.kind != "ros2" or len(files) != 1 or files[0].suffix.lower() != ".mcap":
             return None
-        if _messages_compressed(files[0].parent):
+        if messages_compressed(files[0].parent):
             # each message compressed on its own (rosbag2's --compression-mode message): rosbags undoes
             # it; the block reader would read compressed bytes as the message (a new user's bag was
             # called damaged)
@@ -202,7 +206,7 @@ def _remedy(kind: str, error: str) -> str:
     return ""
 
 
-def _messages_compressed(bag_dir: Path) -> bool:
+def messages_compressed(bag_dir: Path) -> bool:
     """rosbag2's metadata.yaml in ``bag_dir`` says each message is compressed on its own."""
     meta = bag_dir / "metadata.yaml"
     return meta.is_file() and re.search(r"compression_mode:\s*['\"]?message", meta.read_text(errors="replace")) is not None

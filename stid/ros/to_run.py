@@ -9,6 +9,8 @@ the gyro zero taken from the stand-still.
 
 from __future__ import annotations
 
+import contextlib
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +19,7 @@ from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
 from stid.held_command import interval_means
 from stid.ros import topic_map
-from stid.ros.bag import Bag
+from stid.ros.bag import Bag, messages_compressed
 from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
 from stid.run import Run
 
@@ -35,7 +37,7 @@ def load_bag(path, vehicle) -> list[Run]:
     path = Path(path)
     where = str(path)
     table = vehicle.ros if vehicle is not None else {}
-    choice, cols = _read(path, table, vehicle, where)
+    choice, cols, unclosed = _read(path, table, vehicle, where)
     notes = list(choice.notes)
     parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
     stamps_ns = {topic: _stamps(cols[topic], topic, table.get("stamps", "header") == "header", notes, where)
@@ -46,7 +48,7 @@ def load_bag(path, vehicle) -> list[Run]:
     imu_rate = 1e9 / float(np.median(np.diff(stamps_ns[choice.imu])))
     rate = float(table.get("rate_hz") or 0.0) or imu_rate
     grid = _grid(times, choice.imu, rate, where)
-    warnings = []
+    warnings = [unclosed] if unclosed else []
     if rate < 0.95 * imu_rate:  # (a user's rate_hz = 20 for a 200 Hz IMU was taken without a word)
         warnings.append(f"[ros] rate_hz = {rate:g} is below the IMU's {imu_rate:.0f} Hz: the IMU is read at "
                         f"{rate:g} Hz without a filter against aliasing, so what it measured above {rate / 2:g} Hz "
@@ -88,9 +90,11 @@ def load_bag(path, vehicle) -> list[Run]:
 
 
 def _read(path, table, vehicle, where):
-    """The topic of each part, and the fields of those topics."""
+    """The topic of each part, the fields of those topics, and what was said of a bag read
+    without its end ("" for the rest)."""
     servo_map = vehicle is not None and "gain" in vehicle.raw.get("steering", {})
-    with _open(path, table) as bag:
+    said = []
+    with _open(path, table, where, said) as bag:
         choice = topic_map.choose(bag.topics, table, servo_map, where, bag.listing())
         wanted = {}
         for part, topic in (("imu", choice.imu), ("odometry", choice.odometry), ("steering", choice.steering)):
@@ -105,7 +109,7 @@ def _read(path, table, vehicle, where):
                 raise InputError(f"{where}: {topic} has {int(bad.sum())} message(s) whose {f} is not a number (NaN or "
                                  f"inf; the first is message {int(np.flatnonzero(bad)[0]) + 1} of {len(bad)}): a "
                                  "driver that failed to read its sensor; cut those out of the bag")
-    return choice, cols
+    return choice, cols, "".join(said)
 
 
 def _grid(times, imu, rate, where) -> np.ndarray:
@@ -173,13 +177,37 @@ def _check(run, table, where) -> None:
         _check_turned(run, table, where)
 
 
-def _open(path, table):
-    """A bag, or a directory of per-topic CSVs that the [ros] table names."""
+@contextlib.contextmanager
+def _open(path, table, where, said):
+    """A bag, or a directory of per-topic CSVs that the [ros] table names. A ROS 2 bag without its
+    end (its recorder killed, or still recording) is read up to its last complete chunk, and
+    that is said in ``said`` (a new user's killed recordings were refused, pointing to `mcap
+    recover`, a tool they may not have, while `stid live` read the same files)."""
     from stid.ros import topic_files
+    from stid.ros.unclosed import being_recorded, readable_copy
 
     if path.is_dir() and not (path / "metadata.yaml").exists() and topic_files.names_files(table):
-        return topic_files.TopicFiles(path, table)
-    return Bag(path)
+        with topic_files.TopicFiles(path, table) as files:
+            yield files
+        return
+    inside = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
+    cut = being_recorded(inside[0]) if len(inside) == 1 and not messages_compressed(inside[0].parent) else None
+    if cut is None:
+        # (a bag directory without its metadata.yaml, which rosbag2 writes last: its one file)
+        with Bag(inside[0] if path.is_dir() and not (path / "metadata.yaml").exists() else path) as bag:
+            yield bag
+        return
+    with tempfile.TemporaryDirectory(prefix="stid-unclosed-") as scratch:
+        copy = Path(scratch) / cut.name
+        n = readable_copy(cut, copy)
+        if not n:
+            raise InputError(f"{where}: the bag was not closed (its recorder was stopped, or is still recording) and "
+                             "holds no complete chunk of messages yet")
+        said.append(f"the bag was not closed (its recorder was killed, or is still recording): read up to its last "
+                    f"complete chunk, {n} messages of {cut.stat().st_size / 1e6:.1f} MB; `mcap recover` may save "
+                    "a little more of its end")
+        with Bag(copy) as bag:
+            yield bag
 
 
 def _stamps(col, topic, use_header, notes, where) -> np.ndarray:

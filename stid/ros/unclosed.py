@@ -1,11 +1,12 @@
-"""A ROS 2 bag while ``ros2 bag record`` writes it, made readable.
+"""A ROS 2 bag without its end, made readable: one that ``ros2 bag record`` is still writing
+(stid live), or whose recorder was killed or ran out of disk (stid fit and the rest).
 
 rosbag2 (MCAP storage) writes ``BAG/BAG_0.mcap`` chunk by chunk and the bag's
 ``metadata.yaml`` and the file's summary and end only when it stops: until then neither
 rosbags nor stid's loader opens it ("File end magic is invalid"). Every complete chunk
 is intact, though: the mcap library's non-seeking reader yields their messages and
 stops at the cut (HARDWARE.md, MCAP). They are written to a finished MCAP file of the
-same profile beside the view's other files, which the loader reads as any ROS 2 bag.
+same profile in a scratch directory, which the loader reads as any ROS 2 bag.
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ MAGIC = b"\x89MCAP0\r\n"
 
 
 def being_recorded(path: Path) -> Path | None:
-    """The MCAP file of a ROS 2 bag still being written (no end yet), or None (finished, or
-    not a ROS 2 MCAP bag)."""
+    """The MCAP file of a ROS 2 bag without its end (still being written, or never closed), or
+    None (finished, or not a ROS 2 MCAP bag)."""
     from stid.ros.bag import kind_of
 
     path = Path(path)
