@@ -48,7 +48,7 @@ class Drive:
 
 
 def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.06, noise=True,
-          imu_offset_ms=2, servo_tau=0.0) -> Drive:
+          imu_offset_ms=2, servo_tau=0.0, dead_ms=0) -> Drive:
     rng = np.random.default_rng(seed)
     n = int(duration * BASE_HZ)
     t = np.arange(n) / BASE_HZ
@@ -60,13 +60,15 @@ def drive(duration=40.0, seed=0, imu_hz=200, odom_hz=50, cmd_hz=50, steer_rms=0.
     cmd = np.where(cmd_t >= 6.0, smooth / smooth.std() * steer_rms, 0.0)
     # held from each command's millisecond on (whole milliseconds: the staircase is exact at 1 kHz)
     steer = cmd[np.searchsorted(np.round(cmd_t * BASE_HZ).astype(int), np.arange(n), side="right") - 1]
-    wheel = steer
+    # the wheel acts on each command dead_ms after its stamp (the driver, the servo's frame)
+    wheel = np.concatenate([np.full(dead_ms, steer[0]), steer[:n - dead_ms]]) if dead_ms else steer
+    acting = wheel
     if servo_tau > 0:  # the servo's first-order lag, exact for an input held over each millisecond
         wheel = np.empty(n)
         w, keep = 0.0, math.exp(-1.0 / (BASE_HZ * servo_tau))
         for k in range(n):
             wheel[k] = w
-            w = steer[k] + (w - steer[k]) * keep
+            w = acting[k] + (w - acting[k]) * keep
     vy, r, ay = _integrate(t, vx, wheel, continuous=servo_tau > 0)
     d = Drive(t=t, steer=steer, vx=vx, ay=ay, r=r, cmd_t=cmd_t, cmd=cmd, wheel=wheel)
     d.imu_k = np.arange(imu_offset_ms, n, BASE_HZ // imu_hz)  # the IMU off the command's instants

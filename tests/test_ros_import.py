@@ -143,6 +143,33 @@ def test_a_piece_after_an_imu_silence_takes_the_gyro_zero_of_the_bag(drive, cont
     _same_data(second, contract, drive)
 
 
+def test_a_dead_time_the_model_lacks_is_seen_and_held_by_the_intervals(tmp_path):
+    """A new user's bags: the servo acts 2 ms after the command's stamp (the driver, the servo's
+    next frame). bicycle+actuator_lag gave Iz +8% with an interval of +-0.6% (+12.7% in the
+    user's own), and diagnose found nothing missing: the lag's first-order shape and Iz take the
+    dead time in together, for under 0.25 fit points. The data show the delay to +-0.04 ms; the
+    fit now says so and its intervals hold the answer with it, the truth among them; with
+    +sensor_delay the parameters come back to the truth."""
+    from stid.fit.fitting import fit
+
+    d = rd.drive(duration=60.0, imu_hz=100, imu_offset_ms=3, servo_tau=0.055, seed=2, dead_ms=2)
+    vehicle = _vehicle(tmp_path)
+    (run,) = load_file(rd.write_bag(d, tmp_path / "run", rd.Layout()), vehicle)
+    res = fit([run], vehicle, "bicycle+actuator_lag", "time")
+    delay, se = res.extra["delay_seen_ms"]
+    assert abs(delay - 2.0) < 0.5 and se < 0.1, (delay, se)  # (the first-order lag takes a little of it)
+    assert "answer the steer 2." in res.interval and "later than the model has them" in res.interval, res.interval
+    got = dict(zip(res.names, zip(res.values, res.ci95)))
+    assert got["Iz"][0] > 1.05 * rd.IZ, got["Iz"]  # the answer without the delay is off ...
+    for name, truth in (("Cf", rd.CF), ("Cr", rd.CR), ("Iz", rd.IZ)):
+        lo, hi = got[name][1]
+        assert lo <= truth <= hi, (name, got[name], truth)  # ... and its interval says how far
+    with_delay = fit([run], vehicle, "bicycle+actuator_lag+sensor_delay", "time")
+    for name, truth in (("Cf", rd.CF), ("Cr", rd.CR), ("Iz", rd.IZ), ("tau_steer", 0.055)):
+        assert abs(with_delay.value(name) / truth - 1) < 0.02, (name, with_delay.value(name), truth)
+    assert with_delay.value("delay_s") == pytest.approx(0.002, abs=0.0005)
+
+
 def test_a_grid_slower_than_the_imu_is_said(plain_bag, tmp_path):
     """[ros] rate_hz = 20 for a 200 Hz IMU reads the IMU at 20 Hz, unfiltered: what it measured above
     10 Hz aliases into the run. It was taken without a word."""

@@ -107,7 +107,7 @@ def disagreements(parts: dict, names) -> list:
     for kind, groups in parts.items():
         for n in names:
             vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n),
-                     dict(zip(g.result.names, g.result.half95)).get(n),
+                     dict(zip(g.result.names, g.result.half95_between_groups)).get(n),
                      dict(zip(g.result.names, g.result.stderr)).get(n)) for g in groups]
             vals = [v for v in vals if v[2] is not None and np.all(np.isfinite(v[2]))]
             bad = False

@@ -52,7 +52,9 @@ class FitResult:
     notes: list = field(default_factory=list)  # what the data selection left out, what was assumed
     interval: str = ""  # which kind of 95% interval ci95 is (noise only, or with model error)
     ci_dof: int | None = None  # degrees of freedom of the interval's t quantile (default n - k)
-    ci_allowance: np.ndarray | None = None  # model-error allowance added to each half-width
+    ci_allowance: np.ndarray | None = None  # model-error allowance added to each half-width (the geometry)
+    # and for a delay between the steer and the outputs that the model leaves out (stid.fit.intervals)
+    delay_allowance: np.ndarray | None = None
     positive: tuple = ()  # parameters positive by nature (a stiffness, an inertia, a lag): see ci95
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
@@ -113,10 +115,22 @@ class FitResult:
         nan where the data do not determine the parameter."""
         return self._half95(self.stderr)
 
-    def _half95(self, stderr: np.ndarray) -> np.ndarray:
+    @property
+    def half95_between_groups(self) -> np.ndarray:
+        """The half-widths two fits of one car in other conditions (speeds, amplitudes) are told
+        apart by: without the delay allowance. One dead time is in both and moves both alike; the
+        allowance for it made every stand-in effect's parameter look like one value across
+        speeds (a tutorial's hidden accel_scale was taken for gyro_scale)."""
+        return self._half95(self.stderr, delay=False)
+
+    def _half95(self, stderr: np.ndarray, delay: bool = True) -> np.ndarray:
         dof = self.ci_dof if self.ci_dof else max(self.n - len(self.values), 1)
         half = stdtrit(dof, 0.975) * stderr
-        return half + self.ci_allowance if self.ci_allowance is not None else half
+        if self.ci_allowance is not None:
+            half = half + self.ci_allowance
+        if delay and self.delay_allowance is not None:
+            half = half + self.delay_allowance
+        return half
 
     @property
     def ci95(self) -> np.ndarray:

@@ -137,7 +137,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         colour = _colour(res.fun.reshape(-1, 2), keeps, stretches[0].dt)
     verdict = convergence.judge(res, space, colour, settled)
     interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
-    widened, jk_dof, allowance = [], None, None
+    widened, jk_dof, allowance, result_delay = [], None, None, None
     if intervals == "model-error" and verdict.converged:
         seconds = sum(int(k.sum()) * st.dt for st, k in zip(stretches, keeps))
         row_block, n_blocks = jk.row_blocks(len(res.fun) // 2, seconds)
@@ -161,6 +161,15 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         if grown:
             interval_note += (f"; {geometry.words()}: {', '.join(grown)} widened to hold the answer with exact "
                               "geometry (cos delta, atan slip angles) too")
+        # a delay between the steer and the outputs that the model leaves out (see stid.fit.intervals)
+        probe = np.concatenate([(jk.delay_probe(model, p_hat, st)[k] / sigma).ravel()
+                                for st, k in zip(stretches, keeps)])
+        delay = jk.delay_allowance(res.jac, res.fun, probe, lambda J, r: _sandwich(J, r, keeps))
+        late = delay.allowance * space.dp_dx(res.x)
+        grown = [n for n, a in zip(space.free, late) if a > 0 and n not in verdict.undetermined]
+        if grown:
+            interval_note += f"; {delay.words()}: {', '.join(grown)} widened to hold the answer with that delay"
+        result_delay = delay
 
     result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
     result.set_verdict(verdict)
@@ -170,6 +179,10 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         result.ci_dof = jk_dof
     if allowance is not None and np.any(allowance > 0):
         result.ci_allowance = allowance
+    if result_delay is not None and np.isfinite(result_delay.delay_ms):
+        result.extra["delay_seen_ms"] = (result_delay.delay_ms, result_delay.se_ms)
+        if np.any(late > 0):
+            result.delay_allowance = late
     for w in warnings:
         result.warn(w)
     for note in getattr(stretches, "notes", []):

@@ -51,7 +51,7 @@ def lacking(runs, res, model, params: list) -> list[str]:
     if not short:
         return out
     out.extend(_stuck_on_model_error(res, short))
-    short = [p for p in short if p.percent is not None and p.name not in _held_by_allowance(res, short)]
+    short = [p for p in short if p.percent is not None and p.name not in _held_by_allowance(res, short, None)]
     if short:
         try:
             out.append(_best_addition(runs, res, model, short))
@@ -60,20 +60,29 @@ def lacking(runs, res, model, params: list) -> list[str]:
     return out
 
 
-def _held_by_allowance(res, short) -> set:
-    allow = getattr(res, "ci_allowance", None)
-    if allow is None:
+def _held_by_allowance(res, short, kind: str = "ci_allowance") -> set:
+    """The parameters whose target the interval's allowance alone misses (``kind``: the geometry's,
+    ``ci_allowance``, or a delay's, ``delay_allowance``; both when None)."""
+    kinds = ("ci_allowance", "delay_allowance") if kind is None else (kind,)
+    parts = [a for a in (getattr(res, k, None) for k in kinds) if a is not None]
+    if not parts:
         return set()
+    allow = np.sum(parts, axis=0)
     idx = {n: i for i, n in enumerate(res.names)}
     return {p.name for p in short if 100 * allow[idx[p.name]] / abs(p.value) >= p.target}
 
 
 def _stuck_on_model_error(res, short) -> list[str]:
+    out = []
     held = _held_by_allowance(res, short)
-    if not held:
-        return []
-    return [f"{', '.join(sorted(held))}: the interval holds the large-angle geometry the linear model leaves out, "
-            "which more data do not shrink: steer less (smaller angles), or accept the wider target"]
+    if held:
+        out.append(f"{', '.join(sorted(held))}: the interval holds the large-angle geometry the linear model leaves "
+                   "out, which more data do not shrink: steer less (smaller angles), or accept the wider target")
+    late = _held_by_allowance(res, short, "delay_allowance") - held
+    if late:
+        out.append(f"{', '.join(sorted(late))}: the interval holds a delay between the steer and the outputs that the "
+                   "model leaves out, which more data do not shrink: watch the model with +sensor_delay")
+    return out
 
 
 def summary(runs, res) -> dict:
