@@ -84,8 +84,8 @@ def _estimate(args):
             out[est + "_se"] = dict(zip(res.names, res.stderr))
             out[est + "_ci"] = {n: (float(lo), float(hi)) for n, (lo, hi) in zip(res.names, res.ci95)}
             out[est + "_method"] = res.method
-            widened = res.interval.split("widened ", 1)[1].split(" (t with")[0].split(", ") \
-                if "widened " in res.interval else []
+            # (read from the note's words, this counted the parameters a later allowance widened too)
+            widened = res.extra.get("jackknife_widened", [])
             out[est + "_jackknife"] = {n: n in widened for n in res.names}
         elif est in ("study", "study+sensors"):
             st = dataset.dynamic_stretches(runs)

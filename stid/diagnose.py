@@ -134,7 +134,7 @@ class Diagnosis:
                "noise_floor": {k: round(v, 2) for k, v in self.floor.items()},
                "noise_floor_stderr": {k: round(v, 3) for k, v in self.floor_se.items()},
                # fit points above the floor, per output where beyond chance: then nothing more is named
-               "above_floor": above_floor(res.fit, self.floor, self.floor_se),
+               "above_floor": above_floor(res.fit, self.floor, self.floor_se), **res._delay_json(),
                "effective_samples": round(self.n_eff),
                "named": self.named,
                "candidates": [c.to_json() for c in self.candidates]}

@@ -107,6 +107,10 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         elif known and above_floor(d.base.fit, d.floor, d.floor_se):
             lines.extend(_wrap("=> nothing more is named: the model fits above the noise floor, which then cannot "
                                "say whether something is still missing", first="  "))
+        elif known and all(d.base.fit[o] >= d.floor[o] - 0.5 for o in known) and d.base.delay_words():
+            # a delay gains a fraction of a fit point and moves Iz by several percent: not "nothing missing"
+            lines.extend(_wrap("=> no effect gains fit points: the model is at the noise floor, but "
+                               + d.base.delay_words(), first="  "))
         elif known and all(d.base.fit[o] >= d.floor[o] - 0.5 for o in known):
             lines.append("  => nothing is missing that this data can show: the model is at the noise floor"
                          + ("" if len(known) == 2 else f" of {known[0]} (the other has none)"))

@@ -170,6 +170,27 @@ def test_a_dead_time_the_model_lacks_is_seen_and_held_by_the_intervals(tmp_path)
     assert with_delay.value("delay_s") == pytest.approx(0.002, abs=0.0005)
 
 
+def test_a_diagnosis_at_the_floor_does_not_call_a_delay_it_sees_nothing(tmp_path):
+    """1 ms of dead time: no effect gains fit points (the floor is reached), which diagnose read as
+    "nothing is missing that this data can show", while the data show the delay at z ~ 30 and it
+    moves Iz by ~4%. The verdict now says what the data show, and the live view's line too."""
+    import json
+
+    from stid.diagnose import diagnose
+    from stid.live.diagnosis import verdict
+    from stid.present import diagnosis_text
+
+    d = rd.drive(duration=60.0, imu_hz=100, imu_offset_ms=3, servo_tau=0.055, seed=5, dead_ms=1)
+    vehicle = _vehicle(tmp_path)
+    runs = load_file(rd.write_bag(d, tmp_path / "run", rd.Layout()), vehicle)
+    (found,) = diagnose(runs, vehicle, "bicycle+actuator_lag")
+    text = diagnosis_text([found])
+    assert found.named == [] and "nothing is missing" not in text, text
+    assert "no effect gains fit points" in text and "later than bicycle+actuator_lag has them" in text, text
+    line = verdict(json.dumps(found.to_json()), 60.0)
+    assert "later than bicycle+actuator_lag has them" in line and "nothing missing" not in line, line
+
+
 def test_a_grid_slower_than_the_imu_is_said(plain_bag, tmp_path):
     """[ros] rate_hz = 20 for a 200 Hz IMU reads the IMU at 20 Hz, unfiltered: what it measured above
     10 Hz aliases into the run. It was taken without a word."""

@@ -208,8 +208,28 @@ class FitResult:
                 "fit": {k: round(float(v), 2) if np.isfinite(v) else None for k, v in self.fit.items()},
                 "correlation": {"params": list(self.names), "matrix": np.round(self.corr, 4).tolist()},
                 "aic": float(self.aic), "bic": float(self.bic), "n": int(self.n),
-                "interval": self.interval,
+                "interval": self.interval, **self._delay_json(),
                 "warnings": list(self.warnings), "notes": list(self.notes)}
+
+    def _delay_json(self) -> dict:
+        """The delay the data show between the steer and the outputs beyond the model's
+        (stid.fit.intervals.delay_allowance), and whether the intervals hold the answer with it."""
+        seen = self.extra.get("delay_seen_ms")
+        if seen is None:
+            return {}
+        return {"delay_seen_ms": {"value": round(float(seen[0]), 4), "stderr": round(float(seen[1]), 4),
+                                  "intervals_allow_for_it": self.delay_allowance is not None}}
+
+    def delay_words(self) -> str:
+        """One line on a delay the intervals allow for ('' when none)."""
+        seen = self.extra.get("delay_seen_ms")
+        if seen is None or self.delay_allowance is None:
+            return ""
+        way = "later" if seen[0] > 0 else "earlier"
+        fix = ("fit +sensor_delay to take it in" if seen[0] > 0 else
+               "the steer is timed late (a command timed by its receive time?)")
+        return (f"the outputs answer the steer {abs(seen[0]):.2f} ms (std. error {seen[1]:.2f}) {way} than "
+                f"{self.model} has them: its intervals allow for it; {fix}")
 
     def table(self) -> str:
         lines = [f"model {self.model}   method {self.method}   "

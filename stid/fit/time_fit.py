@@ -177,6 +177,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     result.interval = interval_note
     if widened:
         result.ci_dof = jk_dof
+        result.extra["jackknife_widened"] = [space.free[i] for i in widened]
     if allowance is not None and np.any(allowance > 0):
         result.ci_allowance = allowance
     if result_delay is not None and np.isfinite(result_delay.delay_ms):

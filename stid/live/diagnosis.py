@@ -110,6 +110,11 @@ def verdict(output: str, driving_s: float) -> str | None:
         if doc.get("above_floor"):  # (the floor is then no reference: stid.analysis.noise_floor.above_floor)
             return (f"diagnosis: nothing more named: {model} fits above the noise floor "
                     f"({', '.join(doc['above_floor'])}), which then cannot say whether something is still missing {at}")
+        late = doc.get("delay_seen_ms") or {}
+        if late.get("intervals_allow_for_it"):  # (a delay moves Iz by percents for a fraction of a fit point)
+            way = "later" if late["value"] > 0 else "earlier"
+            return (f"diagnosis: no effect gains fit points, but the outputs answer the steer {abs(late['value']):.2f} "
+                    f"ms {way} than {model} has them (its intervals allow for it) {at}")
         return f"diagnosis: nothing missing from {model} that these data show {at}"
     shown = {}
     for c in doc["candidates"]:
