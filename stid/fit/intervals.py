@@ -309,8 +309,11 @@ def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, cha
     first = None
     for _ in range(CHORD_STEPS):
         try:
-            change = change_at(far, dx)
+            with np.errstate(all="ignore"):  # (a step far out: exp overflows; said by the finite check below)
+                change = change_at(far, dx)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError):  # a step into a model that cannot be built
+            break
+        if not np.all(np.isfinite(change)):
             break
         step_dx, *_ = np.linalg.lstsq(J, -(r + change), rcond=None)
         if not np.all(np.isfinite(step_dx)):
