@@ -275,8 +275,8 @@ class DelayCheck:
             return ""
         seen = f"{abs(self.delay_ms):.2f} ms (std. error {self.se_ms:.2f}, z = {self.z:.0f})"
         if self.delay_ms > 0:
-            return (f"the outputs answer the steer {seen} later than the model has them (a dead time in the servo "
-                    "or its driver, a sensor's delay; `+sensor_delay` fits it)")
+            return (f"the outputs answer the steer {seen} later than the model has them (a servo's lag or dead "
+                    "time, a sensor's delay: `stid diagnose` names which)")
         return (f"the outputs answer the steer {seen} earlier than the model has them: the steer is timed late (a "
                 "command timed by its receive time, a logger's clock)")
 
