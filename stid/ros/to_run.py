@@ -194,7 +194,8 @@ def _open(path, table, where, said):
     cut = being_recorded(inside[0]) if len(inside) == 1 and not messages_compressed(inside[0].parent) else None
     if cut is None:
         # (a bag directory without its metadata.yaml, which rosbag2 writes last: its one file)
-        with Bag(inside[0] if path.is_dir() and not (path / "metadata.yaml").exists() else path) as bag:
+        alone = path.is_dir() and not (path / "metadata.yaml").exists() and len(inside) == 1
+        with Bag(inside[0] if alone else path) as bag:
             yield bag
         return
     with tempfile.TemporaryDirectory(prefix="stid-unclosed-") as scratch:
