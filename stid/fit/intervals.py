@@ -239,19 +239,18 @@ def geometry_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, change: 
 DELAY_PROBE_MS = 1.0  # the probe's unit: a millisecond of delay
 
 
-def delayed_change(model, p: dict, st, delay_s: float, p_then: dict | None = None) -> np.ndarray:
-    """The outputs at ``p_then`` (default ``p``) with the steer ``delay_s`` later, less the outputs
-    at ``p``, on a stretch (the steer drawn with lines between samples, as the models take it;
-    zero-input outputs, a sensor's offsets, cancel)."""
+def delayed_change(model, p: dict, st, y0: np.ndarray, delay_s: float) -> np.ndarray:
+    """The outputs at ``p`` with the steer ``delay_s`` later, less ``y0`` (the fit's outputs on the
+    stretch, which it has already), on a stretch (the steer drawn with lines between samples, as
+    the models take it; zero-input outputs, a sensor's offsets, cancel)."""
     later = np.interp(st.t - delay_s, st.t, st.steer)
-    y0 = model.simulate(p, st.steer, st.dt, st.vx_series, sensors=st.sensors)
-    return model.simulate(p_then or p, later, st.dt, st.vx_series, sensors=st.sensors) - y0
+    return model.simulate(p, later, st.dt, st.vx_series, sensors=st.sensors) - y0
 
 
-def delay_probe(model, p: dict, st) -> np.ndarray:
-    """d(ay, r)/d(delay) [per ms] on a stretch: over an eighth of a sample."""
+def delay_probe(model, p: dict, st, y0: np.ndarray) -> np.ndarray:
+    """d(ay, r)/d(delay) [per ms] on a stretch (``y0``: the outputs at ``p``): over an eighth of a sample."""
     h = st.dt / 8
-    return delayed_change(model, p, st, h) * (DELAY_PROBE_MS * 1e-3 / h)
+    return delayed_change(model, p, st, y0, h) * (DELAY_PROBE_MS * 1e-3 / h)
 
 
 CHORD_STEPS = 3  # steps toward the answer with the delay (each one simulation per stretch)
@@ -281,7 +280,7 @@ class DelayCheck:
                 "command timed by its receive time, a logger's clock)")
 
 
-def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, change_at=None) -> DelayCheck:
+def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, change_at) -> DelayCheck:
     """The delay the data show (DelayCheck): ``probe`` residual rows (scaled as r) per ms of
     delay; ``cov_of(J, r)`` the noise covariance of a fit with Jacobian J and residuals r;
     ``change_at(ms, dx)`` the residual rows' change with the steer that much later and the
@@ -302,8 +301,6 @@ def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, cha
     delay, se = float(step[-1]), float(np.sqrt(max(cov[-1, -1], 1e-300)))
     if abs(delay) <= Z_SIGNIFICANT * se:
         return DelayCheck(np.zeros(p), delay, se)
-    if change_at is None:
-        return DelayCheck(np.abs(step[:-1]), delay, se)
     far = delay + np.copysign(Z_SIGNIFICANT * se, delay)
     dx = np.zeros(p)
     first = None
@@ -322,4 +319,5 @@ def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, cha
         if np.any(np.abs(dx + step_dx) > 3 * np.abs(first) + 1e-12):
             break  # steps that grow (a model far from the data, where the delay stands in for more): the first
         dx = dx + step_dx
+    # (no chord step could be taken: the probe's first-order step)
     return DelayCheck(np.abs(dx if first is not None else step[:-1]), delay, se)

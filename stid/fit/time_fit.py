@@ -162,12 +162,14 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             interval_note += (f"; {geometry.words()}: {', '.join(grown)} widened to hold the answer with exact "
                               "geometry (cos delta, atan slip angles) too")
         # a delay between the steer and the outputs that the model leaves out (see stid.fit.intervals)
-        probe = np.concatenate([(jk.delay_probe(model, p_hat, st)[k] / sigma).ravel()
-                                for st, k in zip(stretches, keeps)])
+        # (each stretch's outputs at the estimate are its prediction's: not simulated again)
+        probe = np.concatenate([(jk.delay_probe(model, p_hat, st, pr.yhat)[k] / sigma).ravel()
+                                for st, k, pr in zip(stretches, keeps, preds)])
         delay = jk.delay_allowance(
             res.jac, res.fun, probe, lambda J, r: _sandwich(J, r, keeps),
-            lambda ms, dx: np.concatenate([(jk.delayed_change(model, p_hat, st, ms * 1e-3, space.to_p(res.x + dx))[k]
-                                            / sigma).ravel() for st, k in zip(stretches, keeps)]))
+            lambda ms, dx: np.concatenate([(jk.delayed_change(model, space.to_p(res.x + dx), st, pr.yhat,
+                                                              ms * 1e-3)[k] / sigma).ravel()
+                                           for st, k, pr in zip(stretches, keeps, preds)]))
         late = delay.allowance * space.dp_dx(res.x)
         grown = [n for n, a in zip(space.free, late) if a > 0 and n not in verdict.undetermined]
         if grown:
