@@ -188,3 +188,35 @@ def test_a_ctrl_c_that_lands_in_a_fork_handler_still_ends_the_command():
     assert out.returncode == 130, out.stderr[-2000:]
     assert out.stderr.strip().endswith("interrupted") and "Exception ignored" not in out.stderr, out.stderr[-2000:]
     assert out.stdout == "", "the diagnosis ran on to print its result"
+
+
+_SHARED = r"""
+import json, os, time
+from stid.search.pool import shared
+from stid.workers import worker_pool
+
+def job(seconds):
+    time.sleep(seconds)
+    return os.getpid()
+
+with worker_pool(2) as pool:
+    pids = shared(pool, job, [0.8, 0.6, 0.05, 0.05, 0.05])
+    # a pool whose workers are gone: what was not handed over is done here
+    pool.shutdown(wait=True)
+    late = shared(pool, job, [0.01, 0.01, 0.01])
+print(json.dumps({"here": os.getpid(), "pids": pids, "late": late}))
+"""
+
+
+def test_jobs_shared_with_the_workers_are_not_left_waiting_in_their_queue_while_this_process_idles():
+    """stid.search.pool.shared: the two long jobs go to the two workers, and this process does
+    the three short ones itself, one after the other. Before, every job was handed to the pool at
+    once and a third waited in its queue (where it counts as started and cannot be taken back)
+    while this process, done with its own, waited for a worker (a diagnosis's four candidates)."""
+    out = subprocess.run([sys.executable, "-c", _SHARED], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout)
+    here, pids = got["here"], got["pids"]
+    assert pids[2:] == [here] * 3, got  # the short ones, here
+    assert len({pids[0], pids[1], here}) == 3, got  # each long one in a worker of its own
+    assert got["late"] == [here] * 3, got

@@ -9,7 +9,7 @@ import numpy as np
 from stid.fit.fitting import fit
 from stid.models.effect import available_effects
 from stid.models.model import Model
-from stid.search.pool import WORKERS, Ahead, in_workers
+from stid.search.pool import WORKERS, in_workers, shared
 from stid.search.screen import cost
 
 
@@ -54,6 +54,4 @@ def fit_candidates(model_name, effects, vehicle, stretches, init, progress=None,
     # parameter), so that the cores finish together; a fit no worker has taken yet is
     # done here rather than waited for
     order = sorted(range(len(jobs)), key=lambda i: -len(available_effects()[effects[i]].params))
-    ahead = Ahead(pool, fit_candidate, jobs, order)
-    out = {i: ahead.result(i) for i in reversed(order)}  # the last queued first: those are done here
-    return [out[i] for i in range(len(jobs))]
+    return shared(pool, fit_candidate, jobs, order)

@@ -3,6 +3,8 @@ fits are handed to them (stid.workers holds the pool itself)."""
 
 from __future__ import annotations
 
+import collections
+import threading
 from concurrent.futures import Future
 
 from stid import workers
@@ -41,14 +43,45 @@ def mapper(pool, model_name: str):
     free worker (a job the pool has queued counts as started: it cannot be taken back)."""
     if pool is None or not in_workers(model_name):
         return map
+    return lambda fn, jobs: shared(pool, fn, list(jobs))
 
-    def here_and_there(fn, jobs):
-        jobs = list(jobs)
-        there = [pool.submit(fn, j) for j in jobs[:-1]]
-        here = [fn(j) for j in jobs[-1:]]
-        return [f.result() for f in there] + here
 
-    return here_and_there
+def shared(pool, fn, jobs: list, order=None) -> list:
+    """``[fn(job) for job in jobs]``, the jobs shared between the worker pool and this process:
+    the workers take them from the front of ``order`` (the costliest first, when ordered so),
+    this process from the back, until none is left. The pool is handed one job per worker at a
+    time, each worker's next when it finishes one: a job handed over early waits in the pool's
+    queue, where it counts as started and cannot be taken back, while this process, done with
+    its own, waits for it (a diagnosis's four candidates: 0.1-0.2 s idle of 0.55 s)."""
+    order = list(range(len(jobs)) if order is None else order)
+    if pool is None or len(jobs) < 2:
+        return [fn(jobs[i]) for i in range(len(jobs))]
+    left = collections.deque(order)
+    futures: dict = {}
+    lock = threading.Lock()
+
+    def hand_one(_done=None):
+        with lock:
+            if not left:
+                return
+            i = left.popleft()
+            try:
+                futures[i] = pool.submit(fn, jobs[i])
+            except RuntimeError:  # the pool is shut down or broken: what is left is done here
+                left.appendleft(i)
+                return
+        futures[i].add_done_callback(hand_one)  # (runs at once if it is done already)
+
+    for _ in range(min(WORKERS, len(jobs) - 1)):
+        hand_one()
+    here = {}
+    while True:
+        with lock:
+            if not left:
+                break
+            i = left.pop()
+        here[i] = fn(jobs[i])
+    return [here[i] if i in here else futures[i].result() for i in range(len(jobs))]
 
 
 def shares(items: list, n: int, cost) -> list:
