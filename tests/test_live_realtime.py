@@ -124,7 +124,25 @@ def test_under_full_cpu_load_the_logger_loses_no_more_with_the_live_view(tmp_pat
     simulated cars driving at once, two logged plainly, one with --live. The view (niced,
     in its own process) must not cost its logger a sample: its loss is within what the two
     plain loggers, under the same load at the same time, differ by. (The slow version drives
-    long enough for the view's updates to cost most: 90 s of data, a background diagnosis.)"""
+    long enough for the view's updates to cost most: 90 s of data, a background diagnosis.)
+
+    A loss under full load is a chance event: with the plain loggers at 0 and 0 the rule allows
+    the live one none, and it once lost 2 frames while a second test suite ran beside this one.
+    So a trial the live logger loses is driven once more: a view that costs its logger samples
+    loses both, a chance loss seldom twice."""
+    lines = []
+    for trial in range(2):
+        loss, said = _loss_under_load(tmp_path / f"trial{trial}", seconds)
+        lines.append(said)
+        a, b = loss["plain_a"], loss["plain_b"]
+        if loss["live"] <= max(a, b) + abs(a - b):
+            break
+    else:
+        pytest.fail("the live logger lost more than the plain ones in two trials:\n" + "\n\n".join(lines))
+
+
+def _loss_under_load(d, seconds):
+    d.mkdir()
     hogs = []
     try:
         sims = {m: Sim("--duration", seconds, "--speed", 4, "--seed", 3, "--effects", "actuator_lag")
@@ -132,9 +150,9 @@ def test_under_full_cpu_load_the_logger_loses_no_more_with_the_live_view(tmp_pat
         loggers = {}
         for mode, sim in sims.items():
             if mode == "live":
-                loggers[mode] = live_logger(sim.port, tmp_path / f"{mode}.mcap", "--duration", 60, "--every", 1)
+                loggers[mode] = live_logger(sim.port, d / f"{mode}.mcap", "--duration", 60, "--every", 1)
             else:
-                loggers[mode] = subprocess.Popen([tool("stid-log"), sim.port, "-o", str(tmp_path / f"{mode}.mcap"),
+                loggers[mode] = subprocess.Popen([tool("stid-log"), sim.port, "-o", str(d / f"{mode}.mcap"),
                                                   "--duration", "60", "--reconnect-timeout", "1"],
                                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         # the load from here, while the loggers start and log: the three cars' own start-up under it
@@ -154,10 +172,9 @@ def test_under_full_cpu_load_the_logger_loses_no_more_with_the_live_view(tmp_pat
             h.kill()
             h.wait()
     loss = {m: r["lost"] * 10 + r["missing"] for m, r in results.items()}  # (a frame holds 10 samples)
-    a, b = loss["plain_a"], loss["plain_b"]
-    lines = "\n".join(r["line"] for r in results.values())
+    lines = "\n".join(f"{m}: {r['line']}" for m, r in results.items())
     print(lines)
-    assert loss["live"] <= max(a, b) + abs(a - b), lines
+    return loss, lines
 
 
 def test_ctrl_c_stops_the_logger_and_the_view_ends_on_the_finished_file(tmp_path):
