@@ -54,7 +54,7 @@ def _cmd_fit(args) -> int:
     from stid.workers import worker_pool
 
     vehicle, runs = _vehicle_and_runs(args)
-    held = _validation_runs(args, vehicle)
+    held = _validation_runs(args, vehicle, runs)
     judged_on = _judged_stretches(held if held else runs, bool(held))
     # the noise floor needs only the data: it is estimated on the other core while the model is fitted
     with Progress(f"fitting {args.model} ({args.method})") as prog, worker_pool(1) as pool:
@@ -82,19 +82,25 @@ def _cmd_fit(args) -> int:
     return 0
 
 
-def _validation_runs(args, vehicle):
+def _validation_runs(args, vehicle, fitted):
     if not getattr(args, "validate", None):
         return None
     from pathlib import Path
 
     from stid.errors import InputError
-    from stid.load import load_runs, same_data
+    from stid.load import load_runs, same_data, same_runs
+
+    def refuse(names):
+        raise InputError(f"--validate {', '.join(sorted(names))}: the same data as a run fitted to; judge on runs "
+                         "the fit did not see (give them only after --validate)")
 
     both = same_data(list(args.validate), list(args.runs))  # the same file, or a copy of one
     if both:
-        raise InputError(f"--validate {', '.join(sorted({Path(a).name for a, _ in both}))}: the same data as a run "
-                         "fitted to; judge on runs the fit did not see (give them only after --validate)")
+        refuse({Path(a).name for a, _ in both})
     held = load_runs(args.validate, vehicle)
+    both = same_runs(fitted + held, [0] * len(fitted) + [1] * len(held))  # the same samples in other bytes
+    if both:
+        refuse({both[1][0].name})
     _print_load_warnings(held)
     return held
 
@@ -234,7 +240,7 @@ def _cmd_compare(args) -> int:
     from stid.progress import Progress
 
     vehicle, runs = _vehicle_and_runs(args, chain_warning=True)
-    held = _validation_runs(args, vehicle)
+    held = _validation_runs(args, vehicle, runs)
     with Progress("comparing") as prog:
         entries = compare(runs, vehicle, args.model or ["bicycle"], method=args.method, progress=prog,
                           validate=held)

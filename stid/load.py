@@ -37,10 +37,37 @@ def load_runs(paths, vehicle: Vehicle | None = None) -> list[Run]:
         a, b = twice[0]
         raise InputError(f"{a} and {b} hold the same data ({'the same file' if _one_file(a, b) else 'a copy'}): a "
                          "run given twice counts twice, and its intervals come out too narrow; give each run once")
-    runs = []
-    for p in paths:
-        runs.extend(load_file(p, vehicle))
+    runs, source = [], []
+    for i, p in enumerate(paths):
+        got = load_file(p, vehicle)
+        runs.extend(got)
+        source.extend([i] * len(got))
+    twice = same_runs(runs, source)
+    if twice:
+        (a, ia), (b, ib) = twice
+        pa, pb = paths[ia], paths[ib]
+        raise InputError(f"{a.name} (from {pa}) and {b.name} (from {pb}) hold the same samples: a run given twice "
+                         "(a bag directory named twice, a log and its export) counts twice, and its intervals come "
+                         "out too narrow; give each run once")
     return runs
+
+
+def same_runs(runs, source) -> tuple | None:
+    """The first two runs, from different arguments (``source``: each run's), whose steer, ay
+    and r are the same samples (the byte-equal files same_data finds are refused before they
+    are read)."""
+    import hashlib
+
+    seen = {}
+    for run, src in zip(runs, source):
+        h = hashlib.sha1()
+        for a in (run.steer, run.ay, run.r):
+            h.update(np.ascontiguousarray(a, float).tobytes())
+        key = (len(run.steer), h.digest())
+        if key in seen and seen[key][1] != src:
+            return seen[key], (run, src)
+        seen.setdefault(key, (run, src))
+    return None
 
 
 def same_data(paths, others=()) -> list[tuple]:

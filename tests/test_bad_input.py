@@ -174,9 +174,9 @@ def test_files_in_each_others_places_are_named(tmp_path):
 
 
 def test_a_run_given_twice_is_refused_not_counted_twice(tmp_path, clean):
-    """The same file twice (by another path, too) or a byte copy of it would count its data
-    twice and narrow the intervals by sqrt(2): refused, in one line; so is a copy given as
-    the held-out run of --validate."""
+    """The same file twice (by another path, too), a byte copy of it or the same samples in
+    another file would count its data twice and narrow the intervals by sqrt(2): refused, in one
+    line; so is a copy given as the held-out run of --validate."""
     run = write_csv(tmp_path / "run.csv", clean)
     copy = tmp_path / "copy.csv"
     copy.write_bytes(run.read_bytes())
@@ -186,7 +186,16 @@ def test_a_run_given_twice_is_refused_not_counted_twice(tmp_path, clean):
                            capture_output=True, text=True, timeout=120)
         assert r.returncode == 2 and "hold the same data" in r.stderr and "Traceback" not in r.stderr, r.stderr
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    # the same samples in other bytes (a log and its export, the columns in another order): read, then refused
+    export = write_csv(tmp_path / "export.csv", dict(reversed(list(clean.items()))))
+    r = subprocess.run([tool("stid"), "fit", str(run), str(export), "--vehicle", str(VEHICLE)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "hold the same samples" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     r = subprocess.run([tool("stid"), "fit", str(run), "--vehicle", str(VEHICLE), "--validate", str(copy)],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "the same data as a run fitted to" in r.stderr, r.stderr
+    r = subprocess.run([tool("stid"), "fit", str(run), "--vehicle", str(VEHICLE), "--validate", str(export)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "the same data as a run fitted to" in r.stderr, r.stderr
     ok = subprocess.run([tool("stid"), "fit", str(run), str(other), "--vehicle", str(VEHICLE)],
