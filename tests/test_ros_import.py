@@ -568,3 +568,14 @@ def test_a_topic_stamped_by_its_own_clock_points_to_receive_times(drive, tmp_pat
     bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(stamp_offset_s={"/sensors/imu/raw": -rd.EPOCH_NS * 1e-9}))
     with pytest.raises(InputError, match='do not overlap.*stamps = "receive"'):
         load_file(bag, _vehicle(tmp_path))
+
+
+def test_a_bag_directory_named_twice_is_refused_not_counted_twice(plain_bag, tmp_path):
+    """A directory has no bytes to compare, and a ROS 2 bag is one: named twice (by another path
+    too) its samples counted twice and the intervals came out sqrt(2) too narrow, silently."""
+    from stid.load import load_runs
+
+    vehicle = _vehicle(tmp_path)
+    for again in (plain_bag, plain_bag.parent / ".." / plain_bag.parent.name / plain_bag.name):
+        with pytest.raises(InputError, match="hold the same samples: a run given twice"):
+            load_runs([plain_bag, again], vehicle)
