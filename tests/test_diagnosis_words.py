@@ -33,6 +33,24 @@ def test_a_value_that_moves_with_speed_carries_its_unit_after_the_number_not_aft
     assert "s at 3.1 m/s" in text and text.endswith("s at 7.1 m/s"), text
 
 
+def test_values_not_one_across_speeds_are_shown_with_the_intervals_they_were_compared_by():
+    """Groups compared without a delay's allowance (it moves every group alike) were shown with
+    it: intervals that overlapped beside "not one value". Shown now as compared."""
+    from stid.analysis.evidence import Group, disagreements
+    from stid.fit.result import FitResult
+
+    def res(v, se):
+        r = FitResult(model="m", method="time", names=["x_acc"], values=np.array([v]),
+                      cov=np.array([[se * se]]), units={"x_acc": "m"}, n=10_000)
+        r.delay_allowance = np.array([0.05])  # wider than the groups' difference
+        return r
+
+    ((_, _, text),) = disagreements({"speed": [Group("3 m/s", [], res(0.10, 0.002)),
+                                               Group("6 m/s", [], res(0.16, 0.002))]}, ["x_acc"])
+    # 1.96 x 0.002 = 0.0039 either side, apart as compared (with the allowance: [0.0461, 0.1539], [0.1061, 0.2139])
+    assert "[0.0961, 0.1039] m at 3 m/s" in text and "[0.1561, 0.1639] m at 6 m/s" in text, text
+
+
 def test_one_run_across_a_range_of_speeds_is_not_called_one_speed():
     """One 63 s run on a track spanning 1.2-4.4 m/s (the real log of issue 21): one stretch,
     one speed group for the evidence, but not one speed."""

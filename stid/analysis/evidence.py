@@ -106,7 +106,9 @@ def disagreements(parts: dict, names) -> list:
     out = []
     for kind, groups in parts.items():
         for n in names:
-            vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95)).get(n),
+            # shown with the intervals they are compared by (without a delay's allowance, which
+            # moves every group alike: FitResult.half95_between_groups)
+            vals = [(g.label, g.result.value(n), dict(zip(g.result.names, g.result.ci95_between_groups)).get(n),
                      dict(zip(g.result.names, g.result.half95_between_groups)).get(n),
                      dict(zip(g.result.names, g.result.stderr)).get(n)) for g in groups]
             vals = [v for v in vals if v[2] is not None and np.all(np.isfinite(v[2]))]

@@ -135,7 +135,15 @@ class FitResult:
     @property
     def ci95(self) -> np.ndarray:
         """(k, 2) rows of 95% intervals; a row of nan where the data do not determine it."""
-        half = self.half95
+        return self._ci(self.half95)
+
+    @property
+    def ci95_between_groups(self) -> np.ndarray:
+        """The intervals of ``half95_between_groups``: what two fits of one car in other
+        conditions are compared by, and so what a comparison shows."""
+        return self._ci(self.half95_between_groups)
+
+    def _ci(self, half: np.ndarray) -> np.ndarray:
         lo, hi = self.values - half, self.values + half
         # a parameter positive by nature gets the same relative half-width in log space (where the
         # solver fits it): an interval [-1693, 6595] N/rad for a cornering stiffness holds values no
