@@ -181,3 +181,29 @@ def test_a_run_held_at_one_speed_is_told_nothing_about_speed(rc_vehicle):
     assert "the response lags more at low speed" in words and "at 1.2 m/s" in words and "at 3.0 m/s" in words, words
     one_words = _explanation("tyre_relaxation", one, rc_vehicle)
     assert "one speed only" in one_words and "needs a second speed" in one_words, one_words
+
+
+def test_a_cg_the_vehicle_file_misplaces_is_said_to_read_as_an_accelerometer_off_it(tmp_path):
+    """a and b swapped in the vehicle file, on runs written here from plain physics whose
+    accelerometer sits at the CG: the data name accel_offset (+2.4 cm), which measures the
+    accelerometer from the CG the file places. The words say so, and what to check."""
+    from test_bad_input import A, B, M, bicycle_run, write_csv
+
+    from stid.diagnose import diagnose
+    from stid.load import load_runs
+    from stid.vehicle_file import load_vehicle
+
+    paths = []
+    for v, seed in ((4.0, 1), (6.0, 2)):
+        run = bicycle_run(v, duration=30.0, seed=seed)
+        rng = np.random.default_rng(seed + 10)
+        run["ay"] = run["ay"] + 0.05 * rng.standard_normal(len(run["t"]))
+        run["r"] = run["r"] + 0.005 * rng.standard_normal(len(run["t"]))
+        paths.append(write_csv(tmp_path / f"run_{v:g}.csv", run))
+    car = tmp_path / "car.toml"
+    car.write_text(f'name = "a and b swapped"\nmass = {M}\na = {B}\nb = {A}\n')
+    vehicle = load_vehicle(car)
+    (found,) = diagnose(load_runs(paths, vehicle), vehicle)
+    named = [c for c in found.candidates if c.significant]
+    assert [c.effect for c in named] == ["accel_offset"], [(c.effect, c.why_not) for c in found.candidates]
+    assert "if it is mounted at the CG, a and b are wrong" in named[0].explanation, named[0].explanation

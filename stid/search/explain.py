@@ -34,8 +34,11 @@ def explain(c: Candidate, base, stretches, res=None, adding: str = "Adding it") 
         lead = (f"{trend} ({lags} at the front axle): tyre relaxation, "
                 f"sigma_f = {p['sigma_f']:.3f} m, sigma_r = {p['sigma_r']:.3f} m")
     elif c.effect == "accel_offset":
+        # measured from the CG the vehicle file's a and b place: a CG elsewhere reads the same (a and b
+        # swapped in a file: +2.4 cm named on a car whose accelerometer sits at its CG)
         lead = (f"only the ay residual has structure, and it follows the yaw acceleration: the accelerometer "
-                f"sits {100 * p['x_acc']:+.1f} cm {'ahead of' if p['x_acc'] > 0 else 'behind'} the CG")
+                f"sits {100 * p['x_acc']:+.1f} cm {'ahead of' if p['x_acc'] > 0 else 'behind'} the CG where the "
+                "vehicle file's a and b put it (if it is mounted at the CG, a and b are wrong: weigh the axles)")
     elif c.effect == "body_roll":
         lead = (f"ay reads {100 * 9.81 * p['roll_gain']:.1f}% high in steady cornering with a resonance near "
                 f"{p['roll_freq']:.1f} Hz; yaw rate fits: the body rolls "
