@@ -157,6 +157,12 @@ def _refused(where, what, looks, x, r, vx, ay, fs, vehicle, pulse=False) -> Inpu
                                         "told apart and |gain| is too large by 1 + K vx^2")
                   + "; 'stid calibrate --circle' or the car's own settings give them exactly")
     lines = "\n".join(f"  {k} = {v}" for k, v in zip(keys, vals))
+    st = (vehicle.raw.get("steering", {}) if vehicle is not None else {}) or {}
+    # a pulse map (what stid calibrate writes for stid-log's pulse widths) is not this command's
+    # map: without this the user, whose file has a [steering] table, is told to declare one
+    other = (" The vehicle file's [steering] center_us and us_per_rad map a servo pulse width in us (as stid-log "
+             "records it), not this command: add offset and gain beside them." if not pulse and
+             ("center_us" in st or "us_per_rad" in st) else "")
     return InputError(f"{where}: '{what}' looks like {looks}, not a road-wheel angle in rad: fitted as radians every "
-                      f"parameter would be wrong. Declare its map in the vehicle file ({source}):\n"
+                      f"parameter would be wrong.{other} Declare its map in the vehicle file ({source}):\n"
                       f"  [steering]\n{lines}")

@@ -323,6 +323,20 @@ def test_servo_command_without_its_map_is_refused_with_the_lines_to_add(drive, t
     assert np.corrcoef(run.steer, np.interp(run.t, drive.t - drive.t[0], drive.steer))[0, 1] > 0.95
 
 
+def test_a_pulse_map_in_the_vehicle_file_is_said_not_to_map_a_servo_command(drive, tmp_path):
+    """A vehicle file from stid calibrate holds [steering] center_us and us_per_rad (stid-log's
+    pulse widths). Its owner, told only to "declare the map", has one: the refusal says that map
+    is not this 0-1 command's, and the lines to add beside it still load the bag."""
+    msg = _error(tmp_path, drive, rd.Layout(servo=True, steer_topic="/commands/servo/position"),
+                 "[steering]\ncenter_us = 1500.0\nus_per_rad = 1145.9\n")
+    assert "looks like a servo command in 0-1 units" in msg, msg
+    assert "center_us and us_per_rad map a servo pulse width in us" in msg, msg
+    lines = [ln.strip() for ln in msg.split("[steering]\n")[1].splitlines()]
+    (run,) = load_file(tmp_path / "run", _vehicle(tmp_path, "[steering]\ncenter_us = 1500.0\nus_per_rad = 1145.9\n"
+                                                            + "\n".join(lines) + "\n"))
+    assert np.corrcoef(run.steer, np.interp(run.t, drive.t - drive.t[0], drive.steer))[0, 1] > 0.95
+
+
 def test_cli_says_one_line_and_exits_non_zero(drive, tmp_path):
     bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(drop_topics=("/odom",)))
     car = rd.vehicle_toml(tmp_path / "car.toml")
