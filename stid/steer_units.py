@@ -155,7 +155,9 @@ def _refused(where, what, looks, x, r, vx, ay, fs, vehicle, pulse=False) -> Inpu
         source = ("values estimated from this run's kinematics, road-wheel angle = L r / vx + understeer, when "
                   "cornering gently" + ("" if est[2] else "; the speed hardly varied, so the understeer could not be "
                                         "told apart and |gain| is too large by 1 + K vx^2")
-                  + "; 'stid calibrate --circle' or the car's own settings give them exactly")
+                  + "; on simulated bags they came up to 3-6% off the true map, and the cornering stiffnesses "
+                  "fitted with them inherit that error, which no interval holds: 'stid calibrate --circle' or the "
+                  "car's own settings give them exactly")
     lines = "\n".join(f"  {k} = {v}" for k, v in zip(keys, vals))
     st = (vehicle.raw.get("steering", {}) if vehicle is not None else {}) or {}
     # a pulse map (what stid calibrate writes for stid-log's pulse widths) is not this command's

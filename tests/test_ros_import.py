@@ -317,6 +317,7 @@ def test_servo_command_without_its_map_is_refused_with_the_lines_to_add(drive, t
     # car that made the bag, up to its understeer
     assert float(lines["offset"]) == pytest.approx(rd.SERVO_OFFSET, abs=0.01)
     assert float(lines["gain"]) == pytest.approx(rd.SERVO_GAIN, rel=0.05)
+    assert "inherit that error, which no interval holds" in msg, msg  # an estimate says how good it is
     # the lines, added as they are, make the bag load
     (run,) = load_file(tmp_path / "run", _vehicle(tmp_path, "[steering]\n" + "\n".join(
         f"{k} = {v}" for k, v in lines.items()) + "\n"))
