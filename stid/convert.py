@@ -58,11 +58,64 @@ def steer_angle(steer_us, vehicle: Vehicle):
 START_LOOKBACK_S = 1.0
 
 
-def still_samples(vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S) -> np.ndarray:
+# A car standing still does not turn: its yaw rate is the gyro's zero and noise. Where the speed
+# reads zero while the yaw rate, low-passed at STILL_LOWPASS_HZ (a nitro engine's vibration is far
+# above it), moves by more than STILL_R_SPAN, the speed sensor failed, not the car stopped (a hall
+# magnet or wire, an odometry that stalled). A stretch of random steer at 4 m/s with 6 s of its
+# wheel speed at zero gave a gyro zero of -0.9 deg/s, which diagnose named as a gyro offset.
+STILL_LOWPASS_HZ = 2.0
+STILL_R_SPAN = 0.1  # rad/s (5.7 deg/s) peak to peak; a gyro at rest moves ~1 deg/s there (noise and drift)
+STILL_EDGE_S = 0.5  # judged without the ends of a stand-still: the filter smears the stop into them
+
+
+def turning_while_still(r: np.ndarray, vx: np.ndarray, fs: float) -> list:
+    """``(start, stop, span)`` of each stretch where the speed says the car stands still and the
+    yaw rate (low-passed) moves by ``span`` > STILL_R_SPAN [rad/s]: the car drove there."""
+    mask = segments.still_mask(vx, fs)
+    if not mask.any() or fs <= 2 * STILL_LOWPASS_HZ:
+        return []
+    from stid.fit import filters
+
+    r = np.asarray(r, float)
+    lp = filters.sosfiltfilt(filters.butter_lowpass_sos(2, STILL_LOWPASS_HZ, fs), np.nan_to_num(r))
+    out = []
+    edge = int(STILL_EDGE_S * fs)
+    for a, b in segments.runs_of(mask, 1):
+        core = lp[a + edge:b - edge] if b - a > 3 * edge else lp[a + (b - a) // 3:b - (b - a) // 3]
+        span = float(np.ptp(core)) if len(core) else 0.0
+        if span > STILL_R_SPAN:
+            out.append((a, b, span))
+    return out
+
+
+def speed_dropout_words(r: np.ndarray, vx: np.ndarray, fs: float, t0: float = 0.0) -> str | None:
+    """A warning for the stretches ``turning_while_still`` finds, or None."""
+    found = turning_while_still(r, vx, fs)
+    if not found:
+        return None
+    zero = np.abs(np.asarray(vx, float)) < 0.05  # (the whole reading, not the core still_mask keeps)
+    spans = []
+    for a, b, span in found[:3]:
+        while a > 0 and zero[a - 1]:
+            a -= 1
+        while b < len(zero) and zero[b]:
+            b += 1
+        spans.append(f"{t0 + a / fs:.1f}-{t0 + b / fs:.1f} s (the yaw rate moving by {span:.2f} rad/s)")
+    where = ", ".join(spans) + (" and more" if len(found) > 3 else "")
+    return (f"the speed reads zero while the car turns at {where}: the speed sensor failed there (a hall magnet "
+            "or its wire, a stalled odometry), the car did not stop; not taken as standing still (the gyro's zero "
+            "comes from the rest) and, slower than the fit's speed, out of the fit")
+
+
+def still_samples(vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S, r=None) -> np.ndarray:
     """True where the car stands still, less the last ``lookback_s`` before the speed first
     shows motion (a hall sensor's: it needs two pulses; a motor controller's speed, as a ROS
-    bag's odometry has it, sees motion at once): the samples a gyro's zero is taken from."""
+    bag's odometry has it, sees motion at once): the samples a gyro's zero is taken from.
+    With the yaw rate ``r``, without the stretches where the car turned (turning_while_still)."""
     mask = segments.still_mask(vx, fs)
+    if r is not None:
+        for a, b, _ in turning_while_still(r, vx, fs):
+            mask[a:b] = False
     back = int(lookback_s * fs)
     for a, b in segments.runs_of(mask, 1):
         if b < len(mask):  # the car drives off after this stretch
@@ -92,7 +145,7 @@ def gyro_zero_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: f
     An offset left after this zero is the gyro's drift since (stid.analysis.kinematics)."""
     from stid.stats import tau_int
 
-    mask = still_samples(vx, fs, lookback_s)
+    mask = still_samples(vx, fs, lookback_s, r=r)
     n = int(mask.sum())
     if n < 0.5 * fs:
         return None

@@ -227,6 +227,9 @@ def _csv_gyro_zero(run) -> None:
     export) moves it by that mean, the noise's average. Said in a note either way."""
     zero = convert.gyro_zero_from_still(run.r, run.vx, run.fs)
     convert.set_gyro_zero(run, zero, "this run's stand-still")
+    dropout = convert.speed_dropout_words(run.r, run.vx, run.fs, float(run.t[0]))
+    if dropout:
+        run.warn(dropout)
     bias = run.meta["gyro_bias"]
     notes = run.meta.setdefault("notes", [])
     if bias is None:
@@ -234,7 +237,7 @@ def _csv_gyro_zero(run) -> None:
                      f"{convert.START_LOOKBACK_S:g} s before it drives off (a wheel sensor may not see the start), "
                      "too little to show the gyro's zero")
         return
-    still_s = float(np.sum(convert.still_samples(run.vx, run.fs))) / run.fs
+    still_s = zero["still_s"]
     run.r = run.r - bias
     notes.append(f"gyro zero {bias:+.4f} rad/s ({np.degrees(bias):+.2f} deg/s), the mean of r over {still_s:.1f} s "
                  "standing still, taken off r")
@@ -464,6 +467,9 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
         run.extra["clipped"] = clip.astype(float) if valid is None else np.interp(tu, t_us, clip.astype(float))
     zero = convert.gyro_zero_from_still(run.r, run.vx, fs)
     convert.set_gyro_zero(run, zero, "this run's stand-still")
+    dropout = convert.speed_dropout_words(run.r, run.vx, fs, float(run.t[0]))
+    if dropout:
+        run.warn(dropout)
     bias = run.meta["gyro_bias"]
     if bias is not None:
         run.r = run.r - bias

@@ -406,6 +406,9 @@ def _gyro_zero(run) -> None:
     # the odometry's speed comes from the motor (ERPM): no hall pulses to wait for
     zero = convert.gyro_zero_from_still(run.r, run.vx, run.fs, lookback_s=0.0)
     convert.set_gyro_zero(run, zero, "this run's stand-still")
+    dropout = convert.speed_dropout_words(run.r, run.vx, run.fs, float(run.t[0]))
+    if dropout:
+        run.warn(dropout)
     bias = run.meta["gyro_bias"]
     if bias is None:
         return
