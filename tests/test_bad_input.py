@@ -188,6 +188,19 @@ def test_a_run_given_twice_is_refused_not_counted_twice(tmp_path, clean):
         assert len(r.stderr.strip().splitlines()) == 1, r.stderr
     # the same samples in other bytes (a log and its export, the columns in another order): read, then refused
     export = write_csv(tmp_path / "export.csv", dict(reversed(list(clean.items()))))
+    # and as another tool's export, its values rounded otherwise and its time in Unix seconds (a trial
+    # user's copy with Unix time loaded a hair apart: its gyro zero, taken at load, moved r by 3e-5)
+    rng = np.random.default_rng(7)
+    still = {n: np.concatenate([np.zeros(300), v]) for n, v in clean.items()}
+    still["t"] = np.arange(len(still["t"])) / FS
+    still["r"] = still["r"] + 0.005 * rng.standard_normal(len(still["t"]))
+    names = list(still)
+    for name, shift, fmt in (("still.csv", 0.0, "%.7g"), ("unix.csv", 1.7e9, "%.6f")):
+        np.savetxt(tmp_path / name, np.column_stack([still[n] + (shift if n == "t" else 0.0) for n in names]),
+                   delimiter=",", header=",".join(names), comments="", fmt=["%.6f" if n == "t" else fmt for n in names])
+    r = subprocess.run([tool("stid"), "fit", str(tmp_path / "still.csv"), str(tmp_path / "unix.csv"), "--vehicle",
+                        str(VEHICLE)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "hold the same samples" in r.stderr and "Traceback" not in r.stderr, r.stderr
     r = subprocess.run([tool("stid"), "fit", str(run), str(export), "--vehicle", str(VEHICLE)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "hold the same samples" in r.stderr and "Traceback" not in r.stderr, r.stderr
