@@ -51,6 +51,25 @@ def test_values_not_one_across_speeds_are_shown_with_the_intervals_they_were_com
     assert "[0.0961, 0.1039] m at 3 m/s" in text and "[0.1561, 0.1639] m at 6 m/s" in text, text
 
 
+def test_one_run_that_holds_two_speeds_is_tested_at_both():
+    """One run driven 28 s at 3 m/s, then 28 s at 6 m/s (a trial user's): one stretch, whose
+    median is neither. It was called "never held at two separate speeds for 10 s each", with
+    advice to drive what it held, and the evidence had no per-speed fits."""
+    from stid.analysis.evidence import partitions
+    from stid.analysis.speeds import at_speeds, held_speeds, one_speed_words
+
+    run = Stretches([_stretch("two speeds", lambda t: np.interp(t, [0, 28, 32, 60], [3.0, 3.0, 6.0, 6.0]), T=60.0)])
+    assert [round(v, 1) for v, _ in held_speeds(run)] == [3.0, 6.0], held_speeds(run)
+    assert at_speeds(run).startswith("at every speed (3, 6 m/s)"), at_speeds(run)
+    assert "never held" not in one_speed_words(run), one_speed_words(run)
+    groups = partitions(run)["speed"]
+    assert [g.label for g in groups] == ["3.0 m/s", "6.0 m/s"]
+    assert all(len(g.stretches[0].t) >= 27 * 100 for g in groups)  # each speed's held part, the change left out
+    # a speed that only sweeps holds none: one stretch, as before
+    sweep = Stretches([_stretch("sweep", lambda t: 3.0 + 0.05 * t, T=60.0)])
+    assert len(held_speeds(sweep)) == 1 and "speed" not in partitions(sweep)
+
+
 def test_one_run_across_a_range_of_speeds_is_not_called_one_speed():
     """One 63 s run on a track spanning 1.2-4.4 m/s (the real log of issue 21): one stretch,
     one speed group for the evidence, but not one speed."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stid.analysis.evidence import MIN_GROUP_S, SPEED_STEP
+from stid.analysis.evidence import MIN_GROUP_S, SPEED_STEP, speed_pieces
 
 
 def _label(v: float) -> str:
@@ -26,9 +26,10 @@ def speed_range(stretches) -> tuple:
 
 def held_speeds(stretches) -> list:
     """The separate speeds the stretches are driven at (their medians, a new speed 15% above the
-    last), slowest first, each as (median speed, seconds of stretches)."""
+    last; a stretch that holds two speeds for MIN_GROUP_S each counts as its pieces), slowest
+    first, each as (median speed, seconds of stretches)."""
     out = []
-    for st in sorted(stretches, key=lambda s: s.vx):
+    for st in sorted(speed_pieces(stretches), key=lambda s: s.vx):
         if not out or st.vx > SPEED_STEP * out[-1][2]:
             out.append([[], 0.0, st.vx])
         out[-1][0].append(st.vx)
