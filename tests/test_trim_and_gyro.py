@@ -26,7 +26,7 @@ NOISE = (0.03, 0.003)  # m/s^2, rad/s rms
 def plain_run(path, seed, speed, trim=0.0, k_gyro=0.0, bias_r=0.0, bias_ay=0.0, swing=0.0, duration=30.0,
               fs=200.0, rms=0.04):
     """Write a CSV (the import contract) of the linear single track driven by random steer at
-    ``speed`` (swinging by ``swing`` in a 9 s sine): the road wheels at steer + ``trim``; the
+    ``speed`` (swinging by ``swing`` in a 9 s sine; or a function of time): the road wheels at steer + ``trim``; the
     gyro reads (1 + ``k_gyro``) r + ``bias_r``, the accelerometer ay + ``bias_ay``.
 
     The equations, m (vy' + vx r) = Fyf + Fyr and Iz r' = a Fyf - b Fyr with linear tyres, are
@@ -37,7 +37,7 @@ def plain_run(path, seed, speed, trim=0.0, k_gyro=0.0, bias_r=0.0, bias_ay=0.0, 
     rng = np.random.default_rng(seed)
     w = signal.sosfiltfilt(signal.butter(4, 3.0, fs=fs, output="sos"), rng.standard_normal(n))
     steer = rms * w / np.std(w)
-    vx = speed * (1.0 + swing * np.sin(2 * np.pi * t / 9.0))
+    vx = speed(t) if callable(speed) else speed * (1.0 + swing * np.sin(2 * np.pi * t / 9.0))
 
     def matrices(v):
         """x' = F x + G delta for x = (vy, r), and ay = H x + K delta, at speed v."""
@@ -50,7 +50,7 @@ def plain_run(path, seed, speed, trim=0.0, k_gyro=0.0, bias_r=0.0, bias_ay=0.0, 
     road = steer + trim  # the wheels point trim off the command
     F0, G0, _, _ = matrices(vx[0])
     x0 = -np.linalg.solve(F0, G0 * road[0])
-    if swing == 0.0:
+    if swing == 0.0 and not callable(speed):
         F, G, H, K = matrices(speed)
         _, _, x = signal.lsim((F, G[:, None], np.eye(2), np.zeros((2, 1))), road, t, X0=x0, interp=True)
     else:  # classical Runge-Kutta, two steps a sample (the car's fastest mode is ~30 ms)
