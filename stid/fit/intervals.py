@@ -321,3 +321,39 @@ def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, cha
         dx = dx + step_dx
     # (no chord step could be taken: the probe's first-order step)
     return DelayCheck(np.abs(dx if first is not None else step[:-1]), delay, se)
+
+
+# -- an error common to a run: the gyro zero taken off its yaw rate -------------------------
+#
+# The loader takes the gyro's zero from the run's stand-still (stid.convert.gyro_zero_from_still),
+# a mean of noise over a second or two: it is off by its own standard error, and that offset is
+# in every r sample the fit sees. The noise covariance counts it nowhere. A parameter that a
+# constant in r moves (a trim's delta0, a gyro's bias_r) came out of its interval by 4 standard
+# errors on a trial user's trimmed car with 1.9 s of stand-still (its zero 0.0005 rad/s off).
+ZERO_Z = 1.96  # the zero's own 95% range, whose far end the allowance holds
+
+
+def gyro_zero_allowance(J: np.ndarray, stretches, keeps, sigma_r: float) -> np.ndarray:
+    """Each parameter's move (fit coordinates, absolute) when each run's gyro zero is off by ZERO_Z of
+    its standard error, the runs' independent moves added in quadrature; zeros without a zero
+    taken. The residuals are the fit's: the kept samples of each stretch in turn, (ay, r) rows
+    scaled by their levels (``sigma_r``: r's). One least-squares solve, no simulation: a
+    constant in r is a column of the residuals' own."""
+    p = J.shape[1]
+    cols, ses, pos = {}, {}, 0
+    for st, k in zip(stretches, keeps):
+        m = int(np.sum(k))
+        zero = getattr(st, "gyro_zero", None)
+        se = float(zero.get("stderr", float("nan"))) if zero else float("nan")
+        if np.isfinite(se) and se > 0:  # the stretches of one run share its zero (one record)
+            col = cols.setdefault(id(zero), np.zeros(J.shape[0]))
+            col[pos + 1:pos + 2 * m:2] = -1.0 / sigma_r
+            ses[id(zero)] = se
+        pos += 2 * m
+    if not cols:
+        return np.zeros(p)
+    C = np.column_stack(list(cols.values()))
+    with np.errstate(all="ignore"):
+        shift, *_ = np.linalg.lstsq(J, -C, rcond=None)  # (p, runs): the move per rad/s of each run's zero
+    out = ZERO_Z * np.sqrt(np.sum((shift * np.array(list(ses.values()))) ** 2, axis=1))
+    return np.where(np.isfinite(out), out, 0.0)

@@ -55,6 +55,8 @@ class FitResult:
     ci_allowance: np.ndarray | None = None  # model-error allowance added to each half-width (the geometry)
     # and for a delay between the steer and the outputs that the model leaves out (stid.fit.intervals)
     delay_allowance: np.ndarray | None = None
+    # the gyro zero's own uncertainty (stid.fit.intervals.gyro_zero_allowance), added to each half-width
+    zero_allowance: np.ndarray | None = None
     positive: tuple = ()  # parameters positive by nature (a stiffness, an inertia, a lag): see ci95
     predictions: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # method-specific (steady-state line fits, FRFs)
@@ -128,6 +130,8 @@ class FitResult:
         half = stdtrit(dof, 0.975) * stderr
         if self.ci_allowance is not None:
             half = half + self.ci_allowance
+        if self.zero_allowance is not None:
+            half = half + self.zero_allowance
         if delay and self.delay_allowance is not None:
             half = half + self.delay_allowance
         return half

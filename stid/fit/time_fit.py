@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.special import stdtrit  # Student t quantile (scipy.stats is slow to import)
 
 from stid.fit.dataset import Stretch, check_excitation
 from stid.fit.result import FitResult, Prediction, fit_percent
@@ -137,7 +138,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         colour = _colour(res.fun.reshape(-1, 2), keeps, stretches[0].dt)
     verdict = convergence.judge(res, space, colour, settled)
     interval_note = "95% intervals: noise only (Newey-West sandwich on the residuals)"
-    widened, jk_dof, allowance, result_delay = [], None, None, None
+    widened, jk_dof, allowance, result_delay, zero = [], None, None, None, None
     if intervals == "model-error" and verdict.converged:
         seconds = sum(int(k.sum()) * st.dt for st, k in zip(stretches, keeps))
         row_block, n_blocks = jk.row_blocks(len(res.fun) // 2, seconds)
@@ -161,6 +162,13 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         if grown:
             interval_note += (f"; {geometry.words()}: {', '.join(grown)} widened to hold the answer with exact "
                               "geometry (cos delta, atan slip angles) too")
+        # the gyro zero taken off r at load is off by its own standard error (see stid.fit.intervals)
+        zero = jk.gyro_zero_allowance(res.jac, stretches, keeps, float(sigma[1])) * np.abs(space.dp_dx(res.x))
+        half = stdtrit(jk_dof or max(len(res.fun) - len(res.x), 1), 0.975) * np.sqrt(np.maximum(np.diag(cov), 0.0))
+        grown = [n for n, z, h in zip(space.free, zero, half) if z > 0.1 * h and n not in verdict.undetermined]
+        if grown:
+            interval_note += (f"; the gyro zero taken from the stand-still is itself uncertain: {', '.join(grown)} "
+                              "widened to hold that too")
         # a delay between the steer and the outputs that the model leaves out (see stid.fit.intervals)
         # (each stretch's outputs at the estimate are its prediction's: not simulated again)
         probe = np.concatenate([(jk.delay_probe(model, p_hat, st, pr.yhat)[k] / sigma).ravel()
@@ -185,6 +193,8 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         result.extra["jackknife_widened"] = [space.free[i] for i in widened]
     if allowance is not None and np.any(allowance > 0):
         result.ci_allowance = allowance
+    if zero is not None and np.any(zero > 0):
+        result.zero_allowance = zero
     if result_delay is not None and np.isfinite(result_delay.delay_ms):
         result.extra["delay_seen_ms"] = (result_delay.delay_ms, result_delay.se_ms)
         if np.any(late > 0):
