@@ -166,13 +166,16 @@ def _floor_errors(stretches, memory_s, keep_from_s, with_folds, ridge):
     # predictor, the change between them left out): the speed law about one median speed cannot
     # span 3 to 6 m/s, and a trial user's two-speed runs had floors 1-2.4 points below what the
     # right model reached, +-1.1 to 1.6 (+-0.05 at one speed)
-    stretches = _thinned(speed_pieces(stretches))
+    # (a run's stretches share its predictor: "run.csv[2]" is the run's; a piece is its speed's)
+    whole = {id(st) for st in stretches}
+    pieces = speed_pieces(stretches)
+    keys = [st.name.split("[")[0] + ("" if id(st) in whole else f" at {st.vx:.1f} m/s") for st in pieces]
     err = {o: [] for o in OUTS}
     ref = {o: [] for o in OUTS}
     folds = []
     groups: dict = {}
-    for st in stretches:
-        groups.setdefault(st.name.split("[")[0], []).append(st)
+    for key, st in zip(keys, _thinned(pieces)):
+        groups.setdefault(key, []).append(st)
     for items in groups.values():
         e, r, f = _run_errors(items, memory_s, keep_from_s, ridge)
         for o in OUTS:
