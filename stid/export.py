@@ -60,8 +60,9 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None, ov
             print(f"warning: {run.name}: {w}", file=sys.stderr)
     _note_the_sensor_chain(runs[0])
     note = "" if len(written) == 1 else (f" (the log had {len(written)} pieces, split where the stream "
-                                         "stopped for more than 0.1 s: an unplug, a restart or a burst of "
-                                         "lost frames; each piece's t starts at 0)")
+                                         "stopped or its steer or speed was unknown for more than 0.1 s: an "
+                                         "unplug, a restart, a burst of lost frames or rows without values; "
+                                         "each piece's t starts at 0)")
     print(f"wrote {', '.join(map(str, written))}{note}", file=sys.stderr)
     return 0
 
@@ -72,8 +73,9 @@ def _export_to_stdout(run_path: str, vehicle_path: str | None) -> int:
     if not runs:
         raise InputError(f"{run_path} holds no usable samples")
     if len(runs) > 1:
-        raise InputError(f"{run_path} is a log of {len(runs)} pieces (split where the stream stopped for more than "
-                         "0.1 s), a CSV each: give --csv a file name (OUT.csv, OUT.2.csv, ... are written)")
+        raise InputError(f"{run_path} is a log of {len(runs)} pieces (split where the stream stopped, or its steer "
+                         "or speed was unknown, for more than 0.1 s), a CSV each: give --csv a file name (OUT.csv, "
+                         "OUT.2.csv, ... are written)")
     write_csv(runs[0], sys.stdout)
     for w in runs[0].meta.get("warnings", []):
         print(f"warning: {runs[0].name}: {w}", file=sys.stderr)

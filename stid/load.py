@@ -146,9 +146,10 @@ def _load_file(path, vehicle: Vehicle | None = None) -> list[Run]:
     if path.suffix.lower() == ".toml":  # the mirror of a run given as --vehicle
         raise InputError(f"{path} is a vehicle file, not a run: give the runs (RUN.mcap or RUN.csv) first and "
                          "the vehicle file after --vehicle")
-    run = load_csv(path, vehicle)
-    run.meta["sensor_chain"] = sensor_chain.from_vehicle(vehicle)
-    return [run]
+    runs = _cut_at_unknown_input(load_csv(path, vehicle))
+    for run in runs:
+        run.meta["sensor_chain"] = sensor_chain.from_vehicle(vehicle)
+    return runs
 
 
 # -- CSV ------------------------------------------------------------------------
@@ -173,15 +174,7 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
                          "in the vehicle file, e.g. ay = \"-imu_ax\" (docs/ros.md)")
     if len(df) < MIN_SAMPLES:
         raise InputError(f"{path} has only {len(df)} rows; a run needs at least {MIN_SAMPLES} samples")
-    cols = {}
-    for c in list(REQUIRED) + [c for c in OPTIONAL if c in df.columns]:
-        x = pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=float)
-        bad = ~np.isfinite(x)
-        if bad.any():
-            first = int(np.flatnonzero(bad)[0])
-            raise InputError(f"{path}: column '{c}' has {int(bad.sum())} missing or non-numeric value(s) "
-                             f"(first at data row {first + 1}); fill or drop those rows")
-        cols[c] = x
+    cols, unknown, notes = _numeric_columns(df, path)
     from stid.steer_units import road_wheel_angle
 
     fs = 1.0 / float(np.median(np.diff(cols["t"]))) if np.all(np.diff(cols["t"]) > 0) else 100.0
@@ -196,11 +189,12 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
                          "sort the rows or remove duplicates")
     input_checks.check_time_steps(str(path), t)
     med = float(np.median(dt))
-    valid = None
-    notes = list(steer_notes)
+    valid = ~unknown["rows"] if unknown["rows"].any() else None
+    notes = list(steer_notes) + notes
     if sep != "," or table:
         notes.append(f"read as {csv_map.describe(sep, decimal)}"
                      + (f", columns mapped by the vehicle file's [csv] ({', '.join(table)})" if table else ""))
+    input_unknown = unknown["input"]
     if np.max(np.abs(dt - med)) > 0.05 * med:
         tu = t[0] + med * np.arange(int(round((t[-1] - t[0]) / med)) + 1)
         for k in cols:
@@ -209,27 +203,128 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
         on_grid = np.abs(pos - np.round(pos)) < 0.05
         if on_grid.all():
             # rows missing from a uniform log (lost samples): hold the grid's place, never data
+            place = np.round(pos).astype(np.int64)
+            missing = len(tu) - len(t)
             valid = np.zeros(len(tu), bool)
-            valid[np.round(pos).astype(np.int64)] = True
-            notes.append(f"{int((~valid).sum())} missing rows ({100 * (~valid).mean():.1f}%: time steps up to "
+            valid[place] = ~unknown["rows"]
+            input_unknown = np.ones(len(tu), bool)
+            input_unknown[place] = unknown["input"]
+            notes.append(f"{missing} missing rows ({100 * missing / len(tu):.1f}%: time steps up to "
                          f"{dt.max() * 1e3:.1f} ms in a {med * 1e3:.2f} ms log) are left out of every fit")
         else:
             warnings.append(f"time was irregular (steps {dt.min() * 1e3:.2f}-{dt.max() * 1e3:.2f} ms): "
                             f"resampled to {1 / med:.1f} Hz by linear interpolation")
+            # a grid sample next to a row that was not measured is not one either
+            valid = None if valid is None else np.interp(tu, t, (~valid).astype(float)) == 0.0
+            input_unknown = np.interp(tu, t, unknown["input"].astype(float)) > 0.0
         t = tu
-    extra = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(float) for c in df.columns
+    extra = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(float)[unknown["timed"]] for c in df.columns
              if c not in REQUIRED and c not in OPTIONAL}
-    if len(t) != len(df):  # extra columns stay on the rows' own times: not carried onto a new grid
+    if len(t) != int(unknown["timed"].sum()):  # extra columns stay on the rows' own times: not carried onto a new grid
         extra = {}
     run = Run(name=path.name, t=t - t[0], steer=cols["steer"], ay=cols["ay"], r=cols["r"], vx=cols["vx"],
               ax=cols.get("ax"), beta=cols.get("beta"),
               extra={**{k: v for k, v in cols.items() if k in OPTIONAL and k not in ("ax", "beta")}, **extra},
               meta={"source": str(path), "format": "csv", "notes": notes}, valid=valid)
+    if input_unknown.any():
+        run.meta["input_unknown"] = input_unknown  # where load_file cuts the run (_cut_at_unknown_input)
     for w in warnings:
         run.warn(w)
     _csv_gyro_zero(run)
     input_checks.check_kinematics(run, source="csv")
     return run
+
+
+# A required column may lack values in some rows (a logger that writes an empty field, NaN or
+# "n/a" where a sensor missed its sample): those rows are not measurements, as rows lost from a
+# uniform log are not. More than this share missing is not a logger's gap but a wrong column.
+MAX_MISSING_SHARE = 0.5
+
+
+def _numeric_columns(df, path):
+    """The contract's columns as numbers: ``(columns, unknown, notes)``. A value that is missing or
+    not a number marks its row not measured (``unknown["rows"]``; ``unknown["input"]`` where it is
+    the model's input, steer or vx) and holds a place filled from its neighbours; rows without a
+    time are dropped (their place, if the log is uniform, is then a missing row's). A column
+    missing in most rows is refused: most likely the wrong column."""
+    import pandas as pd
+
+    notes = []
+    present = list(REQUIRED) + [c for c in OPTIONAL if c in df.columns]
+    raw = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=float) for c in present}
+    bad = {c: ~np.isfinite(x) for c, x in raw.items()}
+    n = len(df)
+    for c in list(present):
+        share = float(bad[c].mean())
+        if c not in REQUIRED and share == 1.0:
+            notes.append(f"column '{c}' holds no numbers: left out")
+            present.remove(c)
+            continue
+        if share > MAX_MISSING_SHARE:
+            first = int(np.flatnonzero(bad[c])[0])
+            raise InputError(f"{path}: column '{c}' has {int(bad[c].sum())} missing or non-numeric values in "
+                             f"{n} rows (first at data row {first + 1}: {df[c].iloc[first]!r}): more than half, "
+                             "so not a logger's gaps; is it the right column (the vehicle file's [csv] map), "
+                             "and the delimiter and decimal mark the file uses?")
+    timed = ~bad["t"]
+    if timed.sum() < MIN_SAMPLES:
+        raise InputError(f"{path} has only {int(timed.sum())} rows with a time; a run needs at least {MIN_SAMPLES} "
+                         "samples")
+    cols = {c: raw[c][timed] for c in present}
+    rows = np.zeros(int(timed.sum()), bool)
+    inputs = np.zeros(len(rows), bool)
+    counts = {}
+    t = cols["t"]
+    for c in present[1:]:
+        b = bad[c][timed]
+        if b.any():
+            counts[c] = int(b.sum())
+            rows |= b
+            if c in ("steer", "vx"):
+                inputs |= b
+            cols[c] = np.where(b, np.interp(t, t[~b], cols[c][~b]), cols[c]) if (~b).any() else np.zeros(len(t))
+    if not timed.all():
+        first = int(np.flatnonzero(~timed)[0])
+        notes.append(f"{int((~timed).sum())} row(s) without a number in 't' (first at data row {first + 1}) dropped")
+    if rows.any():
+        first = int(np.flatnonzero(rows)[0])
+        notes.append(f"{int(rows.sum())} row(s) ({100 * rows.mean():.1f}%) lack a value or hold one that is not a "
+                     f"number ({', '.join(f'{c} {k}' for c, k in counts.items())}; first at time {t[first]:g} s): "
+                     "not measurements, left out of every fit as lost samples are")
+    return cols, {"rows": rows, "input": inputs, "timed": timed}, notes
+
+
+def _cut_at_unknown_input(run) -> list:
+    """The run in pieces where its input (steer or vx) is unknown for longer than
+    MAX_FILLED_GAP_S: the model would run through such a gap on made-up input, and its states
+    after it would be wrong while they settle (a stid-log file is cut at such a gap too).
+    Shorter ones stay in, not measured (``Run.valid``). Each piece keeps the run's gyro zero."""
+    unknown = run.meta.pop("input_unknown", None)
+    if unknown is None:
+        return [run]
+    long = int(np.ceil(MAX_FILLED_GAP_S * run.fs))
+    spans = [(a, b) for a, b in _true_spans(unknown) if b - a > long]
+    if not spans:
+        return [run]
+    cuts = [0] + [i for span in spans for i in span] + [len(run.t)]
+    kept = [(a, b) for a, b in zip(cuts[::2], cuts[1::2]) if b - a >= MIN_SAMPLES]
+    pieces = [run.slice(a, b, run.name if k == 0 else f"{run.name}#{k + 1}") for k, (a, b) in enumerate(kept)]
+    gap_s = sum(b - a for a, b in spans) / run.fs
+    words = (f"steer or vx unknown for {gap_s:.1f} s in {len(spans)} gap(s) longer than "
+             f"{1e3 * MAX_FILLED_GAP_S:.0f} ms: the run is cut there")
+    if not pieces:
+        raise InputError(f"{run.meta['source']}: {words}, and no piece of {MIN_SAMPLES} samples is left")
+    for p in pieces:
+        p.meta = dict(p.meta, notes=list(p.meta.get("notes", [])))
+    pieces[0].meta["notes"].append(words + (f" ({piece_names([p.name for p in pieces])})" if len(pieces) > 1
+                                            else ""))
+    return pieces
+
+
+def _true_spans(mask: np.ndarray) -> list:
+    """(start, end) of each run of True in a boolean array."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
 def _csv_gyro_zero(run) -> None:

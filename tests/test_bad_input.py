@@ -273,3 +273,50 @@ def test_negative_bandwidth_is_refused(tmp_path):
 @pytest.mark.parametrize("path", sorted((REPO / "docs" / "examples").glob("*.toml")), ids=lambda p: p.name)
 def test_example_vehicle_files_load(path):
     assert load_vehicle(path).mass > 0
+
+
+# -- values a logger left out ---------------------------------------------------
+
+def test_rows_that_lack_a_value_are_left_out_of_the_fit_not_refused(tmp_path):
+    """A logger writes an empty field, 'nan' or 'n/a' where a sensor missed its sample. Such a
+    row is not a measurement, as a row lost from a uniform log is not: it is left out of every
+    fit (Run.valid), and where the model's input (steer, vx) is unknown for longer than a
+    stid-log file may be filled, the run is cut there. Such files were refused ("fill or drop
+    those rows"); filling them by hand makes up data. A column missing in most rows is the
+    wrong column: refused in one line."""
+    from stid.fit.fitting import fit
+    from stid.load import load_file
+
+    cols = bicycle_run(5.0, seed=11)
+    names, n = list(cols), len(cols["t"])
+    rng = np.random.default_rng(3)
+    cells = np.array([[f"{cols[c][i]:.7g}" for c in names] for i in range(n)], dtype=object)
+    no_ay, no_r = rng.choice(n, 120, replace=False), rng.choice(n, 60, replace=False)
+    cells[no_ay, names.index("ay")] = ""
+    cells[no_r, names.index("r")] = "nan"
+    cells[1500:1560, names.index("steer")] = "n/a"  # 0.6 s without the input: cut there
+    cells[2500:2505, names.index("vx")] = ""  # 50 ms: kept, not measured
+    cells[3000, names.index("t")] = ""  # a row without a time: its place is a missing row's
+    path = tmp_path / "gaps.csv"
+    path.write_text(",".join(names) + "\n" + "\n".join(",".join(row) for row in cells) + "\n")
+    vehicle = load_vehicle(VEHICLE)
+    runs = load_file(path, vehicle)
+    assert [r.name for r in runs] == ["gaps.csv", "gaps.csv#2"]
+    assert [len(r.t) for r in runs] == [1500, n - 1560]
+    unmeasured = np.zeros(n, bool)
+    unmeasured[no_ay] = unmeasured[no_r] = unmeasured[2500:2505] = unmeasured[3000] = True
+    assert np.array_equal(~runs[0].valid, unmeasured[:1500])
+    assert np.array_equal(~runs[1].valid, unmeasured[1560:])
+    notes = " ".join(runs[0].meta["notes"])
+    assert "left out of every fit" in notes and "the run is cut there" in notes, notes
+    res = fit(runs, vehicle, "bicycle", "time")
+    for name, truth in (("Cf", CF), ("Cr", CR), ("Iz", IZ)):
+        lo, hi = res.interval_of(name)
+        assert lo <= truth <= hi, (name, lo, hi, truth)
+    # most of a column missing: not a logger's gaps
+    cells[: n // 2 + 10, names.index("ay")] = ""
+    path.write_text(",".join(names) + "\n" + "\n".join(",".join(row) for row in cells) + "\n")
+    r = subprocess.run([tool("stid"), "fit", str(path), "--vehicle", str(VEHICLE)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2 and "column 'ay'" in r.stderr and "the right column" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr

@@ -223,8 +223,9 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
     lost = sum(int((~s.valid).sum()) for s in moving if s.valid is not None)
     if lost:
         total = sum(len(s.t) for s in moving)
-        notes.append(f"{100 * lost / total:.1f}% of the fitted samples are out of the cost: lost on the link "
-                     f"(or within {1e3 * GAP_REACH_S:.0f} ms of a loss, where the prefilter smears it)")
+        notes.append(f"{100 * lost / total:.1f}% of the fitted samples are out of the cost: not measured (lost on "
+                     f"the link, or a row the file lacks or holds no number in) or within {1e3 * GAP_REACH_S:.0f} ms "
+                     "of such a sample, where the prefilter smears it")
     return Stretches(moving, notes)
 
 
