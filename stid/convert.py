@@ -88,9 +88,10 @@ def turning_while_still(r: np.ndarray, vx: np.ndarray, fs: float) -> list:
     return out
 
 
-def speed_dropout_words(r: np.ndarray, vx: np.ndarray, fs: float, t0: float = 0.0) -> str | None:
-    """A warning for the stretches ``turning_while_still`` finds, or None."""
-    found = turning_while_still(r, vx, fs)
+def speed_dropout_words(r: np.ndarray, vx: np.ndarray, fs: float, t0: float = 0.0, found=None) -> str | None:
+    """A warning for the stretches ``turning_while_still`` finds (``found``, when the caller has
+    them), or None."""
+    found = turning_while_still(r, vx, fs) if found is None else found
     if not found:
         return None
     zero = np.abs(np.asarray(vx, float)) < 0.05  # (the whole reading, not the core still_mask keeps)
@@ -107,14 +108,16 @@ def speed_dropout_words(r: np.ndarray, vx: np.ndarray, fs: float, t0: float = 0.
             "comes from the rest) and, slower than the fit's speed, out of the fit")
 
 
-def still_samples(vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S, r=None) -> np.ndarray:
+def still_samples(vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S, r=None,
+                  turning=None) -> np.ndarray:
     """True where the car stands still, less the last ``lookback_s`` before the speed first
     shows motion (a hall sensor's: it needs two pulses; a motor controller's speed, as a ROS
     bag's odometry has it, sees motion at once): the samples a gyro's zero is taken from.
-    With the yaw rate ``r``, without the stretches where the car turned (turning_while_still)."""
+    With the yaw rate ``r``, without the stretches where the car turned (turning_while_still;
+    ``turning``: those stretches, when the caller has them)."""
     mask = segments.still_mask(vx, fs)
     if r is not None:
-        for a, b, _ in turning_while_still(r, vx, fs):
+        for a, b, _ in (turning_while_still(r, vx, fs) if turning is None else turning):
             mask[a:b] = False
     back = int(lookback_s * fs)
     for a, b in segments.runs_of(mask, 1):
@@ -130,7 +133,8 @@ def gyro_bias_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: f
     return None if zero is None else zero["value"]
 
 
-def gyro_zero_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S):
+def gyro_zero_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: float = START_LOOKBACK_S,
+                         turning=None):
     """The gyro's zero from the run's stand-still, with what it rests on, or None when the run
     never stands still for 0.5 s:
 
@@ -142,10 +146,11 @@ def gyro_zero_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: f
     - ``drift_seen`` [rad/s], how far apart the zeros of the run's separate stand-stills of 0.5 s
       or more lie (0 with one): the drift the run itself shows between them.
 
-    An offset left after this zero is the gyro's drift since (stid.analysis.kinematics)."""
+    An offset left after this zero is the gyro's drift since (stid.analysis.kinematics).
+    ``turning``: turning_while_still's stretches, when the caller has them."""
     from stid.stats import tau_int
 
-    mask = still_samples(vx, fs, lookback_s, r=r)
+    mask = still_samples(vx, fs, lookback_s, r=r, turning=turning)
     n = int(mask.sum())
     if n < 0.5 * fs:
         return None
@@ -156,6 +161,20 @@ def gyro_zero_from_still(r: np.ndarray, vx: np.ndarray, fs: float, lookback_s: f
     pieces = [float(np.mean(r[a:b])) for a, b in segments.runs_of(mask, max(1, int(0.5 * fs)))]
     return {"value": float(np.mean(r[mask])), "stderr": float(np.std(scatter) * np.sqrt(tau / n)),
             "still_s": n / fs, "drift_seen": float(np.ptp(pieces)) if len(pieces) > 1 else 0.0}
+
+
+def zero_from_stand_still(run, fs: float | None = None, lookback_s: float = START_LOOKBACK_S) -> dict | None:
+    """Every loader's step: the gyro zero of ``run`` from its own stand-still (gyro_zero_from_still),
+    recorded (set_gyro_zero; not yet taken off r), and a warning on the run where its speed reads
+    zero while it turns (speed_dropout_words). ``fs``: the run's, when the caller has it."""
+    fs = run.fs if fs is None else fs
+    turning = turning_while_still(run.r, run.vx, fs)
+    zero = gyro_zero_from_still(run.r, run.vx, fs, lookback_s, turning=turning)
+    set_gyro_zero(run, zero, "this run's stand-still")
+    dropout = speed_dropout_words(run.r, run.vx, fs, float(run.t[0]), found=turning)
+    if dropout:
+        run.warn(dropout)
+    return zero
 
 
 def set_gyro_zero(run, zero: dict | None, source: str) -> None:

@@ -332,11 +332,7 @@ def _csv_gyro_zero(run) -> None:
     (HARDWARE.md: estimate it from every run's stand-still): a CSV's stand-still sets it, as an
     MCAP's and a ROS bag's do. Taking the still mean off an r that was zeroed already (stid
     export) moves it by that mean, the noise's average. Said in a note either way."""
-    zero = convert.gyro_zero_from_still(run.r, run.vx, run.fs)
-    convert.set_gyro_zero(run, zero, "this run's stand-still")
-    dropout = convert.speed_dropout_words(run.r, run.vx, run.fs, float(run.t[0]))
-    if dropout:
-        run.warn(dropout)
+    zero = convert.zero_from_stand_still(run)
     bias = run.meta["gyro_bias"]
     notes = run.meta.setdefault("notes", [])
     if bias is None:
@@ -572,11 +568,7 @@ def _convert(s, log, vehicle: Vehicle, name: str, source: str) -> Run:
     if clip.any():
         run.warn(f"{int(clip.sum())} accelerometer samples at the ADC limit (clipped)")
         run.extra["clipped"] = clip.astype(float) if valid is None else np.interp(tu, t_us, clip.astype(float))
-    zero = convert.gyro_zero_from_still(run.r, run.vx, fs)
-    convert.set_gyro_zero(run, zero, "this run's stand-still")
-    dropout = convert.speed_dropout_words(run.r, run.vx, fs, float(run.t[0]))
-    if dropout:
-        run.warn(dropout)
+    convert.zero_from_stand_still(run, fs)
     bias = run.meta["gyro_bias"]
     if bias is not None:
         run.r = run.r - bias

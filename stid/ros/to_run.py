@@ -404,11 +404,7 @@ def _grid_note(parts, times, rate, grid, choice) -> str:
 
 def _gyro_zero(run) -> None:
     # the odometry's speed comes from the motor (ERPM): no hall pulses to wait for
-    zero = convert.gyro_zero_from_still(run.r, run.vx, run.fs, lookback_s=0.0)
-    convert.set_gyro_zero(run, zero, "this run's stand-still")
-    dropout = convert.speed_dropout_words(run.r, run.vx, run.fs, float(run.t[0]))
-    if dropout:
-        run.warn(dropout)
+    convert.zero_from_stand_still(run, lookback_s=0.0)
     bias = run.meta["gyro_bias"]
     if bias is None:
         return
