@@ -34,6 +34,13 @@ class Run:
     valid : ndarray of bool or None
         False at samples that were not measured (lost on the link) and only hold
         the grid's place; None when every sample is a measurement.
+    steer_fine : ndarray or None
+        The steer on a grid ``fine`` times as fine (``(len(t) - 1) * fine + 1`` samples, the
+        first at ``t[0]``): a held command whose steps fall inside the sensors' sample periods
+        (a ROS car's 50 Hz command against a 30-60 Hz IMU), for the models to be driven by
+        (stid.fit.dataset.Stretch.simulation_input); None when ``steer`` serves.
+    fine : int
+        How many steer samples of ``steer_fine`` per sample period (1 without one).
     """
 
     name: str
@@ -47,6 +54,8 @@ class Run:
     extra: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
     valid: np.ndarray | None = None
+    steer_fine: np.ndarray | None = None
+    fine: int = 1
     _fs_of: tuple | None = field(default=None, init=False, repr=False, compare=False)  # (t, its fs)
 
     @property
@@ -72,7 +81,17 @@ class Run:
         cut = lambda x: None if x is None else x[i0:i1]  # noqa: E731
         return Run(name or self.name, self.t[i0:i1], self.steer[i0:i1], self.ay[i0:i1], self.r[i0:i1],
                    self.vx[i0:i1], cut(self.ax), cut(self.beta), {k: v[i0:i1] for k, v in self.extra.items()},
-                   dict(self.meta), None if self.valid is None else self.valid[i0:i1])
+                   dict(self.meta), None if self.valid is None else self.valid[i0:i1],
+                   steer_fine=fine_piece(self.steer_fine, self.fine, i0, i1, len(self.t)), fine=self.fine)
 
     def warn(self, text: str) -> None:
         self.meta.setdefault("warnings", []).append(text)
+
+
+def fine_piece(fine_x, fine: int, i0: int, i1: int, n: int):
+    """The part of a series ``fine`` times as fine as a grid of ``n`` samples (``(n - 1) * fine + 1``
+    of them) that spans the grid's samples ``i0 .. i1 - 1`` (Python slice bounds; None stays None)."""
+    if fine_x is None:
+        return None
+    i0, i1, _ = slice(i0, i1).indices(n)
+    return fine_x[i0 * fine:max(i1 - 1, i0) * fine + 1]

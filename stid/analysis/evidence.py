@@ -11,7 +11,6 @@ effect bending a parameter to mimic it)."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,11 +91,7 @@ def _held_pieces(st) -> list:
     speeds = [float(np.median(st.vx_series[a:b])) for a, b in found]
     if len(found) < 2 or max(speeds) <= SPEED_STEP * min(speeds):
         return [st]
-    return [dataclasses.replace(
-        st, name=f"{st.name} at {v:.1f} m/s", t=st.t[a:b], steer=st.steer[a:b], ay=st.ay[a:b], r=st.r[a:b],
-        vx_series=st.vx_series[a:b], vx=v, valid=None if st.valid is None else st.valid[a:b],
-        measured=None if st.measured is None else {k: x[a:b] for k, x in st.measured.items()})
-        for (a, b), v in zip(found, speeds)]
+    return [st.cut(a, b, name=f"{st.name} at {v:.1f} m/s", vx=v) for (a, b), v in zip(found, speeds)]
 
 
 def partitions(stretches) -> dict:

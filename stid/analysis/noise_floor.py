@@ -144,18 +144,13 @@ def floor_rate(stretches) -> float:
 
 
 def _thinned(stretches):
-    from dataclasses import replace
-
     out = []
     for st in stretches:
         q = max(1, int(round(1.0 / (FLOOR_FS * st.dt))))
         if q == 1 or len(st.t) < 4 * q:
             out.append(st)
             continue
-        sl = slice(0, None, q)
-        out.append(replace(st, t=st.t[sl], steer=st.steer[sl], ay=st.ay[sl], r=st.r[sl],
-                           vx_series=None if st.vx_series is None else st.vx_series[sl],
-                           valid=None if st.valid is None else st.valid[sl]))
+        out.append(st.cut(0, None, q))
     return out
 
 

@@ -61,10 +61,42 @@ class Stretch:
     # the gyro zero taken off r at load, from a stand-still of the same run (stid.convert.gyro_zero_from_still):
     # a gyro offset beyond it is at most the gyro's drift since (stid.analysis.kinematics); None: no zero taken
     gyro_zero: dict | None = None
+    # a held command whose steps fall inside the outputs' sample periods (a ROS car's 50 Hz command
+    # against a 30-60 Hz IMU): the steer and speed ``fine`` times as finely sampled (Run.steer_fine),
+    # which the models are driven by; the outputs stay at the sensors' own instants
+    steer_fine: np.ndarray | None = None
+    vx_fine: np.ndarray | None = None
+    fine: int = 1
 
     @property
     def dt(self) -> float:
         return float(self.t[1] - self.t[0])
+
+    def simulation_input(self):
+        """``(steer, dt, vx)`` the models are driven by: the fine steer where there is one (every
+        ``fine``-th of a simulation's output samples is then this stretch's)."""
+        if self.fine > 1:
+            return self.steer_fine, self.dt / self.fine, self.vx_fine
+        return self.steer, self.dt, self.vx_series
+
+    def cut(self, a: int, b: int, step: int = 1, **changes) -> "Stretch":
+        """Samples ``a:b:step`` of the stretch (``changes``: other fields to replace). Thinned
+        (``step`` > 1) it keeps no fine input: it is for analyses that do not simulate."""
+        from dataclasses import replace
+
+        from stid.run import fine_piece
+
+        sl = slice(a, b, step)
+        n = len(self.t)
+        fine = {"steer_fine": None, "vx_fine": None, "fine": 1}
+        if self.fine > 1 and step == 1:
+            fine = {"steer_fine": fine_piece(self.steer_fine, self.fine, a, b, n),
+                    "vx_fine": fine_piece(self.vx_fine, self.fine, a, b, n), "fine": self.fine}
+        return replace(self, **{"t": self.t[sl], "steer": self.steer[sl], "ay": self.ay[sl], "r": self.r[sl],
+                                "vx_series": None if self.vx_series is None else self.vx_series[sl],
+                                "valid": None if self.valid is None else self.valid[sl],
+                                "measured": None if self.measured is None else
+                                {k: x[sl] for k, x in self.measured.items()}, **fine, **changes})
 
     @property
     def y(self) -> np.ndarray:
@@ -98,14 +130,16 @@ def decimation(fs: float, target_fs: float) -> int:
 def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", "vx")):
     """Prefilter and decimate whole signals of a run (so stretches cut from them carry
     no filter edge transients): (decimation factor, dict of arrays, time). The dict
-    holds ``valid`` too: False where the prefilter reaches a lost sample."""
+    holds ``valid`` too: False where the prefilter reaches a lost sample. A run with a
+    fine steer (Run.steer_fine) is neither: its outputs and its input are on different
+    grids, where one discrete filter is not the same filter on both."""
     fs = run.fs
-    q = decimation(fs, target_fs)
+    q = 1 if run.fine > 1 else decimation(fs, target_fs)
     # every signal at once, one column each: the same numbers as one by one (each column is
     # filtered on its own); one call into scipy.signal's compiled filter where stid live uses it
     cols = np.column_stack([getattr(run, n) if hasattr(run, n) and getattr(run, n) is not None else run.extra[n]
                             for n in names])
-    smooth = prefilter(cols, fs)
+    smooth = cols if run.fine > 1 else prefilter(cols, fs)
     out = {n: _decimate(np.ascontiguousarray(smooth[:, i]), q) for i, n in enumerate(names)}
     m = min(len(v) for v in out.values())
     out = {k: v[:m] for k, v in out.items()}
@@ -193,9 +227,18 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
             b = min((b - int(trim_s * fs)) // q, len(t))
             sl = slice(a, b)
             valid = sig["valid"][sl]
+            vx_series = np.maximum(sig["vx"][sl], 0.5 * V_MOVING)
+            fine = {}
+            if run.fine > 1:  # (q is 1: the samples are the run's)
+                from stid.run import fine_piece
+
+                m = run.fine
+                t_fine = t[a] + np.arange((len(t[sl]) - 1) * m + 1) * (run.dt / m)
+                fine = {"steer_fine": fine_piece(run.steer_fine, m, a, b, len(run.t)), "fine": m,
+                        "vx_fine": np.interp(t_fine, t[sl], vx_series)}
             out.append(Stretch(name=run.name if len(found) == 1 else f"{run.name}[{k + 1}]", t=t[sl],
                                steer=sig["steer"][sl], ay=sig["ay"][sl], r=sig["r"][sl],
-                               vx_series=np.maximum(sig["vx"][sl], 0.5 * V_MOVING),
+                               vx_series=vx_series, **fine,
                                vx=float(np.median(run.vx[a * q:b * q])),
                                valid=None if valid.all() else valid,
                                sensors=run.meta.get("sensor_chain"),

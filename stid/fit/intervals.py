@@ -127,12 +127,14 @@ def wheel_geometry(model, p: dict, st):
     not the logged command (with a 1.4 deg trim the command's square made the probe below fire
     on the trim: z = -3.8 where the wheel's gives -1.1, and the change fell 15% short). The slip
     angles' arguments come from the lateral velocity and the rear slip angle: the model's yaw
-    rate output is the gyro's, with its errors."""
+    rate output is the gyro's, with its errors. At the samples the models are driven at
+    (Stretch.simulation_input: a fine steer's, where the stretch has one)."""
     from stid.models.lpv import V_FLOOR
 
-    s = model.simulate(p, st.steer, st.dt, st.vx_series, outputs=("alpha_f", "alpha_r", "vy"), sensors=st.sensors)
+    steer, dt, vx = st.simulation_input()
+    s = model.simulate(p, steer, dt, vx, outputs=("alpha_f", "alpha_r", "vy"), sensors=st.sensors)
     ctx = model.context(1.0)
-    v = np.maximum(np.asarray(st.vx_series, float), V_FLOOR)  # the speed the simulator's matrices take
+    v = np.maximum(np.asarray(vx, float), V_FLOOR)  # the speed the simulator's matrices take
     x_r = -s[:, 1]
     r = (s[:, 2] - v * x_r) / ctx.b
     x_f = (s[:, 2] + ctx.a * r) / v
@@ -154,13 +156,15 @@ def geometry_responses(model, p: dict, st):
     One wheel-angle simulation and one force simulator serve both (two of each took 10.8 ms
     on the demo's two stretches, this 3.3 ms, for every fit that prints intervals)."""
     d, x_f, x_r = wheel_geometry(model, p, st)  # x: the linear slip angles' arguments
-    sim = model.simulator(p, st.vx_series, st.dt, ["ay", "r"], ["dFf", "dFr"], st.sensors)
+    _, dt, vx = st.simulation_input()
+    sim = model.simulator(p, vx, dt, ["ay", "r"], ["dFf", "dFr"], st.sensors)
     zeros = np.zeros(len(d))
     at_rest = sim(np.column_stack([zeros, zeros]))
     probe = sim(np.column_stack([p["Cf"] * (d - x_f) * d ** 2, zeros])) - at_rest
     dFf = p["Cf"] * ((d - np.arctan(x_f)) * np.cos(d) - (d - x_f))
     dFr = p["Cr"] * (x_r - np.arctan(x_r))
-    return probe, sim(np.column_stack([dFf, dFr])) - at_rest
+    change = sim(np.column_stack([dFf, dFr])) - at_rest
+    return probe[::st.fine], change[::st.fine]
 
 
 @dataclass
@@ -243,8 +247,10 @@ def delayed_change(model, p: dict, st, y0: np.ndarray, delay_s: float) -> np.nda
     """The outputs at ``p`` with the steer ``delay_s`` later, less ``y0`` (the fit's outputs on the
     stretch, which it has already), on a stretch (the steer drawn with lines between samples, as
     the models take it; zero-input outputs, a sensor's offsets, cancel)."""
-    later = np.interp(st.t - delay_s, st.t, st.steer)
-    return model.simulate(p, later, st.dt, st.vx_series, sensors=st.sensors) - y0
+    steer, dt, vx = st.simulation_input()
+    t = st.t if st.fine == 1 else st.t[0] + dt * np.arange(len(steer))
+    later = np.interp(t - delay_s, t, steer)
+    return model.simulate(p, later, dt, vx, sensors=st.sensors)[::st.fine] - y0
 
 
 def delay_probe(model, p: dict, st, y0: np.ndarray) -> np.ndarray:

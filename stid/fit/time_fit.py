@@ -41,8 +41,11 @@ def _as_slice(keep: np.ndarray):
 
 
 def simulate(model, p: dict, st: Stretch) -> np.ndarray:
-    """The model driven by the stretch's steer at its measured speed (varying or not)."""
-    return model.simulate(p, st.steer, st.dt, st.vx_series, sensors=st.sensors)
+    """The model driven by the stretch's steer at its measured speed (varying or not), at the
+    stretch's samples (driven by a fine steer where it has one: Stretch.simulation_input)."""
+    steer, dt, vx = st.simulation_input()
+    y = model.simulate(p, steer, dt, vx, sensors=st.sensors)
+    return y if st.fine == 1 else np.ascontiguousarray(y[::st.fine])
 
 
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,

@@ -21,7 +21,7 @@ from stid.held_command import interval_means
 from stid.ros import topic_map
 from stid.ros.bag import Bag, messages_compressed
 from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
-from stid.run import Run
+from stid.run import Run, fine_piece
 
 G = 9.81
 # A sensor topic's silence is marked not measured (left out of every cost, the model running
@@ -31,6 +31,14 @@ G = 9.81
 SENSOR_CUT_S = 0.5
 MIN_SAMPLES = 20
 GAP_PERIODS = 2.5  # a step this many median periods long lost messages
+# The models draw straight lines between their input's samples: at a slow IMU's rate (30-60 Hz,
+# with a 50 Hz command) even the held command's period means (stid.held_command) spread each step
+# over a sample period. On exact single-track bags with a 50 ms servo lag that read tau_steer -1%
+# at 50 Hz and -3% at 30 Hz, and Cr -0.8%, with intervals that missed them. Below FINE_BELOW_HZ
+# the steer is also kept on a grid near FINE_FS (Run.steer_fine), which drives the models; the
+# outputs stay at the IMU's own instants.
+FINE_BELOW_HZ = 90.0
+FINE_FS = 200.0  # the time-domain fit's own rate (stid.fit.dataset.FIT_FS)
 
 
 def load_bag(path, vehicle) -> list[Run]:
@@ -54,7 +62,8 @@ def load_bag(path, vehicle) -> list[Run]:
                         f"{rate:g} Hz without a filter against aliasing, so what it measured above {rate / 2:g} Hz "
                         "(noise, the motor's vibration) folds into the run; leave rate_hz out to use the IMU's own "
                         "rate")
-    sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings)
+    fine = int(round(FINE_FS / rate)) if rate < FINE_BELOW_HZ else 1
+    sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings, fine)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
     notes.insert(0, _grid_note(parts, times, rate, grid, choice))
@@ -75,7 +84,8 @@ def load_bag(path, vehicle) -> list[Run]:
                 "imu_tilt": tilt}  # mount_roll, mount_pitch [rad] from the stand-still (stid calibrate)
         runs.append(Run(name=path.name if k == 0 else f"{path.name}#{k + 1}", t=grid[a:b] - grid[a],
                         steer=cut["steer"], ay=cut["ay"], r=cut["r"], vx=cut["vx"], ax=cut["ax"], meta=meta,
-                        valid=None if valid[a:b].all() else valid[a:b]))
+                        valid=None if valid[a:b].all() else valid[a:b], fine=fine,
+                        steer_fine=fine_piece(sig.get("steer_fine"), fine, a, b, len(grid))))
     if not runs:
         raise InputError(f"{where}: no stretch of at least {MIN_SAMPLES} samples without a gap over "
                          f"{SENSOR_CUT_S:g} s in the IMU or the odometry")
@@ -131,9 +141,10 @@ def _grid(times, imu, rate, where) -> np.ndarray:
     return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
 
 
-def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings):
-    """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held. And the IMU's
-    tilt at rest (``_tilt``)."""
+def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings, fine=1):
+    """ax, ay, r (IMU), vx (odometry) interpolated onto the grid; steer held (and, ``fine`` > 1,
+    ``steer_fine`` on a grid that many times as fine: Run.steer_fine). And the IMU's tilt at rest
+    (``_tilt``)."""
     imu, imu_t = cols[choice.imu], times[choice.imu]
     acc = np.vstack([imu["linear_acceleration." + a] for a in "xyz"])
     gyro = np.vstack([imu["angular_velocity." + a] for a in "xyz"])
@@ -149,6 +160,8 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     # the servo holds each command until the next: the staircase's mean over each sample period, which
     # the models' input (lines between samples) puts at its own time (stid.held_command)
     sig["steer"] = interval_means(st_t, command, grid, 1.0 / rate)
+    fine_grid = grid[0] + np.arange((len(grid) - 1) * fine + 1) / (fine * rate) if fine > 1 else None
+    command_fine = None if fine_grid is None else interval_means(st_t, command, fine_grid, 1.0 / (fine * rate))
     peak = float(np.max(np.abs(sig["steer"]))) if len(sig["steer"]) else 0.0
     from stid.steer_units import NOT_RADIANS, not_radians
 
@@ -159,11 +172,28 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     if choice.steering_type == FLOAT64:
         from stid.steer_units import road_wheel_angle
 
-        sig["steer"], said, warned = road_wheel_angle(sig["steer"], sig["r"], sig["vx"], sig["ay"], rate, vehicle,
+        raw = sig["steer"]
+        sig["steer"], said, warned = road_wheel_angle(raw, sig["r"], sig["vx"], sig["ay"], rate, vehicle,
                                                       where, choice.steering)
         notes += said
         warnings += warned
+        if command_fine is not None:
+            command_fine = _same_map(raw, sig["steer"], command_fine)
+    if command_fine is not None:
+        sig["steer_fine"] = command_fine
+        notes.append(f"the steering command drives the models at {fine * rate:.0f} Hz, {fine} steps per IMU "
+                     f"sample: at the IMU's {rate:.0f} Hz its steps would spread over a sample period")
     return sig, tilt
+
+
+def _same_map(raw: np.ndarray, mapped: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``x`` through the affine map (a servo command to the road-wheel angle: stid.steer_units)
+    that took ``raw`` to ``mapped``."""
+    i, j = int(np.argmin(raw)), int(np.argmax(raw))
+    if raw[j] == raw[i]:
+        return np.full(len(x), float(mapped[i]) if len(mapped) else 0.0) + 0.0 * x
+    gain = (mapped[j] - mapped[i]) / (raw[j] - raw[i])
+    return mapped[i] + gain * (x - raw[i])
 
 
 def _check(run, table, where) -> None:
