@@ -71,6 +71,13 @@ def _screened_line(d) -> str:
     return f"not fitted (judged by a linearised step from {d.model}): " + "; ".join(parts)
 
 
+def _unsettled(d) -> list:
+    """The candidates of round ``d`` that gained fit points but whose fits did not converge: until
+    they do, the catalogue is not shown to lack the missing effect."""
+    return [c for c in d.candidates if c.result is not None and not c.result.converged
+            and max(c.gain.values(), default=0.0) > 0]
+
+
 def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> str:
     """What to add first, why, what the others are, and the next command."""
     lines = []
@@ -118,6 +125,13 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
             see_below = True
             lines.extend(_wrap("=> nothing named, and with no noise floor on this data nothing says how far "
                                f"{d.model} is from a correct model (see 'unexplained' below)", first="  "))
+        elif _unsettled(d):
+            see_below = True
+            lines.extend(_wrap("=> nothing is named, and the catalogue is not ruled out: the fit of "
+                               + ", ".join(f"{d.model}+{c.effect} (ay {c.gain['ay']:+.1f}, r {c.gain['r']:+.1f} "
+                                           "points where it stopped)" for c in _unsettled(d))
+                               + " did not converge, so what it explains is not known; fit it with 'stid fit "
+                               "--model' and read why it stopped (see 'unexplained' below)", first="  "))
         else:
             see_below = True
             tried = [c for c in d.candidates if c.pairs is not None]
@@ -131,7 +145,7 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         lines.append(f"unexplained after {u.model}" + (" (significant)" if u.significant else "") + ":")
         for w in u.where:
             lines.extend(_wrap("- " + w, indent="    ", first="  "))
-        if u.significant:
+        if u.significant and not _unsettled(last):
             lines.extend(_wrap("an effect the catalogue lacks: write it (docs/writing_an_effect.md), hide it in "
                                "the simulator (stid-sim --effect-file) and see it found", first="  "))
         lines.append("")

@@ -182,6 +182,7 @@ class Layout:
     extra_topics: dict = field(default_factory=dict)  # topic -> msgtype, a few messages each
     steer_deg: bool = False  # the Ackermann steering_angle published in degrees (a driver's mistake)
     imu_silent_s: tuple = ()  # (from, to) [s]: the IMU driver published nothing then (it stalled)
+    imu_stamp_jitter_s: float = 0.0  # rms of a random error in each IMU header stamp (the sample is on time)
 
 
 def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
@@ -232,11 +233,12 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
         acc, gyro = acc / G, np.degrees(gyro)
     if layout.nan_at is not None:
         acc[1, layout.nan_at] = np.nan
+    jitter = layout.imu_stamp_jitter_s * np.random.default_rng(17).standard_normal(len(t_imu))
     for k, t in enumerate(t_imu):
         if layout.imu_silent_s and layout.imu_silent_s[0] <= t < layout.imu_silent_s[1]:
             continue
         # a stamp that goes back (a clock step in the driver): received in its place all the same
-        stamp_t = t - 0.012 if k == layout.backwards_at else t
+        stamp_t = (t - 0.012 if k == layout.backwards_at else t) + jitter[k]
         m = imu_cls(header=header(stamp_t, "imu_link", layout.imu_topic), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
                     orientation_covariance=zero9, angular_velocity=V3(x=gyro[0, k], y=gyro[1, k], z=gyro[2, k]),
                     angular_velocity_covariance=zero9,

@@ -141,8 +141,12 @@ def judge(res, space, colour: float = 1.0, simulation_settled: bool = True) -> V
         reasons.append("the model's simulation did not settle at the answer (its tyre forces are iterated, "
                        "and the iteration did not converge: there the model car slides out)")
     if not np.isfinite(step) or step > STEP_SE_MAX:
-        reasons.append(f"the cost still falls from where it stopped (a step of {step:.3g} standard errors "
-                       "is left)" if np.isfinite(step) else "its residuals or Jacobian are not finite")
+        unsettled = getattr(res, "weights_settled", True) is False
+        reasons.append((f"the cost still falls from where it stopped (a step of {step:.3g} standard errors "
+                        "is left" + (": the outputs' weights had not settled, and at the residual levels the "
+                                     "last solve left, not the weights it was solved with, it is not stationary"
+                                     if unsettled else "") + ")")
+                       if np.isfinite(step) else "its residuals or Jacobian are not finite")
     converged = not reasons
     undetermined = {}
     if not converged:
