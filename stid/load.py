@@ -316,6 +316,8 @@ def _cut_at_unknown_input(run) -> list:
         raise InputError(f"{run.meta['source']}: {words}, and no piece of {MIN_SAMPLES} samples is left")
     for p in pieces:
         p.meta = dict(p.meta, notes=list(p.meta.get("notes", [])))
+        if p.valid is not None and p.valid.all():
+            p.valid = None
     pieces[0].meta["notes"].append(words + (f" ({piece_names([p.name for p in pieces])})" if len(pieces) > 1
                                             else ""))
     return pieces

@@ -320,3 +320,23 @@ def test_rows_that_lack_a_value_are_left_out_of_the_fit_not_refused(tmp_path):
                        timeout=120)
     assert r.returncode == 2 and "column 'ay'" in r.stderr and "the right column" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_rows_missing_for_longer_than_a_fillable_gap_cut_the_run(tmp_path, clean):
+    """Rows missing from a uniform log are not measured (left out of the fit); where they are
+    missing for longer than a stid-log file's gap may be filled (0.1 s) the input is unknown
+    there, and the run is cut, as docs/identification.md says (it was not: the model ran through
+    0.3 s of made-up steer)."""
+    from stid.load import MAX_FILLED_GAP_S, load_file
+
+    n = len(clean["t"])
+    short = np.ones(n, bool)
+    short[1000:1005] = False  # 50 ms
+    (run,) = load_file(write_csv(tmp_path / "short.csv", {k: v[short] for k, v in clean.items()}))
+    assert len(run.t) == n and int((~run.valid).sum()) == 5
+    long = np.ones(n, bool)
+    long[1000:1030] = False  # 0.3 s
+    assert 0.3 > MAX_FILLED_GAP_S
+    runs = load_file(write_csv(tmp_path / "long.csv", {k: v[long] for k, v in clean.items()}))
+    assert [r.name for r in runs] == ["long.csv", "long.csv#2"] and [len(r.t) for r in runs] == [1000, n - 1030]
+    assert runs[0].valid is None and runs[1].valid is None

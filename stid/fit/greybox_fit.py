@@ -36,7 +36,7 @@ END_TRIM_S = 0.1  # s
 
 
 def _pieces(runs, target_fs=100.0):
-    out = []
+    out, still = [], []
     for run in runs:
         missing = [w for w in WHEELS if w not in run.extra]
         if missing:
@@ -44,8 +44,9 @@ def _pieces(runs, target_fs=100.0):
                              "[rad/s]; this run lacks " + ", ".join(missing) + ". Log with four hall sensors "
                              "(firmware WHEELS = 4; stid-sim --wheel-speeds) or give them as CSV columns")
         moving = np.flatnonzero(run.vx > 1.0)
-        if len(moving) < 2 * run.fs:
-            raise InputError(f"{run.name}: moving (vx > 1 m/s) for less than 2 s")
+        if len(moving) < 2 * run.fs:  # (a piece a gap cut off a run's start: the others are fitted)
+            still.append(run.name)
+            continue
         q, sig, t = filtered(_unheld(run), target_fs, ("steer", "ay", "r", "vx") + WHEELS)
         # a run that ends at speed ends in the decimating filter's edge ringing: leave it out
         tail = int(math.ceil(END_TRIM_S * run.fs / q))
@@ -55,7 +56,9 @@ def _pieces(runs, target_fs=100.0):
                     "wheels": np.vstack([sig[w][sl] for w in WHEELS]),
                     "y": np.column_stack([sig["vx"][sl], sig["ay"][sl], sig["r"][sl]]), "valid": valid,
                     "sensors": run.meta.get("sensor_chain")})
-    return out
+    if not out:
+        raise InputError(f"{', '.join(still)}: moving (vx > 1 m/s) for less than 2 s")
+    return out, still
 
 
 def unhold(t: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -157,7 +160,7 @@ def fit_greybox(runs, vehicle, form: str = "greybox", discard_s: float = 0.3) ->
     with the four wheel speeds; warnings name what the data cannot determine."""
     if form not in MODEL_NAMES:
         raise InputError(f"unknown grey-box model {form!r}; choose one of {', '.join(MODEL_NAMES)}")
-    pieces = _pieces(runs)
+    pieces, still = _pieces(runs)
     model = GreyBox(vehicle, form)
     prob = _Problem(model, pieces, vehicle, discard_s)
     space, res, p_hat, cov = prob.fit(model.defaults())
@@ -166,6 +169,8 @@ def fit_greybox(runs, vehicle, form: str = "greybox", discard_s: float = 0.3) ->
     settled = all(np.all(np.isfinite(pr.yhat)) for pr in result.predictions)
     result.set_verdict(convergence.judge(res, space, simulation_settled=settled))
     result.interval = "95% intervals: noise only (robust covariance of the output-error fit)"
+    if still:
+        result.note(f"{', '.join(still)}: moving (vx > 1 m/s) for less than 2 s: left out")
     for chain in sorted({sensor_chain.describe(pc.get("sensors") or sensor_chain.from_vehicle(vehicle))
                          for pc in pieces}):
         result.note(chain)
