@@ -326,8 +326,8 @@ def _body_axes(acc, gyro, table, vehicle, where, notes):
             acc = convert.mount_rotation(roll, pitch) @ acc
             notes.append(f"IMU tilt undone: roll {np.degrees(roll):+.2f} deg, pitch {np.degrees(pitch):+.2f} deg "
                          "(the vehicle file's [sensors])")
-        tilt = np.degrees(np.arctan2(np.hypot(mean[0], mean[1]), mean[2]))
-        notes.append(f"the accelerometer holds gravity ({norm:.2f} m/s^2, {tilt:.1f} deg off z): ay is the "
+        # (its tilt is taken at rest, by _tilt: over the run, a steady turn's ay read as a tilt of 5 deg)
+        notes.append(f"the accelerometer holds gravity (on +z, {norm:.2f} m/s^2 the run's median): ay is the "
                      "specific force the car's y axis feels")
     elif norm < 0.2 * G:
         notes.append("the accelerometer has gravity removed (driver-side): ay taken as it is")
