@@ -50,6 +50,7 @@ def load_bag(path, vehicle) -> list[Run]:
     parts = {"imu": choice.imu, "odometry": choice.odometry, "steering": choice.steering}
     stamps_ns = {topic: _stamps(cols[topic], topic, table.get("stamps", "header") == "header", notes, where)
                  for topic in parts.values()}
+    late = _transport_delays(cols, parts) if table.get("stamps", "header") != "header" else None
     # seconds from the first stamp: epoch nanoseconds as float64 would keep only ~0.2 us
     origin = min(int(t[0]) for t in stamps_ns.values())
     times = {topic: (t - origin) * 1e-9 for topic, t in stamps_ns.items()}
@@ -58,6 +59,8 @@ def load_bag(path, vehicle) -> list[Run]:
     rate = float(table.get("rate_hz") or 0.0) or imu_rate
     grid = _grid(times, imu_line, rate, where)
     warnings = [unclosed] if unclosed else []
+    if late:
+        warnings.append(late)
     if rate < 0.95 * imu_rate:  # (a user's rate_hz = 20 for a 200 Hz IMU was taken without a word)
         warnings.append(f"[ros] rate_hz = {rate:g} is below the IMU's {imu_rate:.0f} Hz: the IMU is read at "
                         f"{rate:g} Hz without a filter against aliasing, so what it measured above {rate / 2:g} Hz "
@@ -266,6 +269,31 @@ def _open(path, table, where, said):
             yield bag
 
 
+TRANSPORT_SAID_MS = 1.0  # receive delays this far apart between the IMU and the command are said
+
+
+def _transport_delays(cols, parts) -> str | None:
+    """Timed by receive: a warning when the IMU's messages reach the bag later after their header
+    stamps than the command's do. Against the command the outputs are then late by transport alone,
+    and a fit reads that as the car's: a trial user's bag, its IMU 30 ms in transit and its command
+    2 ms, named a 58 ms sensor_delay and an accelerometer 4.7 cm behind the CG that were not there."""
+    def delay_ms(topic):
+        col = cols[topic]
+        if "header.stamp.sec" not in col:
+            return None
+        head = col["header.stamp.sec"].astype(np.int64) * 1_000_000_000 + col["header.stamp.nanosec"].astype(np.int64)
+        return None if np.all(head == 0) else float(np.median(col["t_log"].astype(np.int64) - head)) * 1e-6
+
+    imu, steering = delay_ms(parts["imu"]), delay_ms(parts["steering"])
+    if imu is None or steering is None or abs(imu - steering) < TRANSPORT_SAID_MS:
+        return None
+    return (f"timed by receive ([ros] stamps = \"receive\"), yet the messages carry header stamps: "
+            f"{parts['imu']} reaches the bag {imu:.1f} ms after its stamps and {parts['steering']} {steering:.1f} ms, "
+            f"so the outputs lag the command by {imu - steering:+.1f} ms of transport that is not the car's (a fit "
+            "reads it as a servo lag or a sensor delay); where the header stamps hold, time by them (leave "
+            "stamps out)")
+
+
 def _stamps(col, topic, use_header, notes, where) -> np.ndarray:
     """Nanoseconds (from the epoch or the bag's clock) of each message, increasing."""
     log = col["t_log"].astype(np.int64)
@@ -286,7 +314,8 @@ def _stamps(col, topic, use_header, notes, where) -> np.ndarray:
         raise InputError(f"{where}: {topic}'s {kind} go backwards at message {k + 2} of {len(t)} (by "
                          f"{-dt[k] * 1e-6:.1f} ms, {(t[k + 1] - t[0]) * 1e-9:.2f} s in): two publishers on one topic, or a "
                          "clock reset; record that topic from one source"
-                         + (", or time by receive: [ros] stamps = \"receive\"" if kind == "header stamps" else ""))
+                         + (", or time by receive: [ros] stamps = \"receive\" (each topic is then late by its own "
+                            "transport, which stid says where it differs)" if kind == "header stamps" else ""))
     same = dt == 0
     if same.any():
         keep = np.concatenate([[True], ~same])
