@@ -291,8 +291,8 @@ def _sign_message(where, source, steer_sign) -> str:
 def _steer_message(where, source) -> str:
     if source == "ros":
         return (f"{where}: the car turns right when steered left (r against steer): the steering command's sign is "
-                "the other way; for a servo command negate [steering] gain, for an IMU mounted upside down fix "
-                "[ros] imu_axes")
+                "the other way; for a servo command negate [steering] gain, for an AckermannDrive angle published "
+                "positive right set [ros] steering_scale = -1, for an IMU mounted upside down fix [ros] imu_axes")
     if source != "csv":
         return (f"{where}: the car turns right when steered left (r against steer): the steering calibration "
                 "has the wrong sign; negate us_per_rad in the vehicle file's [steering]")

@@ -596,8 +596,29 @@ def test_a_steering_angle_in_degrees_is_refused_not_fitted(drive, tmp_path):
     """AckermannDrive's steering_angle is in rad; a publisher that sends degrees (a new user's bag:
     up to 12.3) was fitted without a word, every parameter at a bound and ay at -88%."""
     bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(steer_deg=True))
-    with pytest.raises(InputError, match=r"which no road wheel turns in rad .*degrees"):
+    with pytest.raises(InputError, match=r"which no road wheel turns in rad .*degrees.*steering_scale = 0.0174533"):
         load_file(bag, _vehicle(tmp_path))
+    # a bag already recorded so is read with the scale the refusal names (a trial user had no way to;
+    # [steering] gain and [ros.fields], which it tried, were not used, without a word)
+    (ref,) = load_file(rd.write_bag(drive, tmp_path / "rad", rd.Layout()), _vehicle(tmp_path))
+    (run,) = load_file(bag, _vehicle(tmp_path, "[ros]\nsteering_scale = 0.017453292519943295\n"))
+    assert np.allclose(run.steer, ref.steer, atol=1e-6)
+    (run,) = load_file(bag, _vehicle(tmp_path, "[ros]\nsteering_scale = 0.017453292519943295\n"
+                                               "[ros.fields]\nstamp = \"t\"\n[steering]\noffset = 0.5\ngain = -1.2\n"))
+    unused = " ".join(run.meta.get("warnings", []))
+    assert "[ros.fields] maps the columns of one CSV per topic" in unused and "offset and gain" in unused, unused
+
+
+def test_a_steering_angle_published_positive_right_is_read_with_its_sign(drive, tmp_path):
+    """The refusal of a command whose sign is the other way names [ros] steering_scale = -1 for an
+    AckermannDrive angle, which reads it."""
+    flipped = dataclasses.replace(drive, cmd=-drive.cmd)
+    bag = rd.write_bag(flipped, tmp_path / "run", rd.Layout())
+    with pytest.raises(InputError, match=r"positive right set \[ros\] steering_scale = -1"):
+        load_file(bag, _vehicle(tmp_path))
+    (ref,) = load_file(rd.write_bag(drive, tmp_path / "ok", rd.Layout()), _vehicle(tmp_path))
+    (run,) = load_file(bag, _vehicle(tmp_path, "[ros]\nsteering_scale = -1\n"))
+    assert np.allclose(run.steer, ref.steer)
 
 
 def test_a_ros1_bag_its_recorder_did_not_close_names_what_rebuilds_it(drive, tmp_path):

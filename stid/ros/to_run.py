@@ -61,6 +61,12 @@ def load_bag(path, vehicle) -> list[Run]:
     warnings = [unclosed] if unclosed else []
     if late:
         warnings.append(late)
+    from stid.ros.topic_files import names_files
+
+    if table.get("fields") and not names_files(table):
+        warnings.append("the vehicle file's [ros.fields] maps the columns of one CSV per topic; this is a bag, whose "
+                        "messages' fields are read as they are: not used (an AckermannDrive angle's unit or sign: "
+                        "[ros] steering_scale)")
     if rate < 0.95 * imu_rate:  # (a user's rate_hz = 20 for a 200 Hz IMU was taken without a word)
         warnings.append(f"[ros] rate_hz = {rate:g} is below the IMU's {imu_rate:.0f} Hz: the IMU is read at "
                         f"{rate:g} Hz without a filter against aliasing, so what it measured above {rate / 2:g} Hz "
@@ -185,6 +191,18 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
     st_t = times[choice.steering]
     command = cols[choice.steering]["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
+    scale = float(table.get("steering_scale", 1.0))
+    if choice.steering_type == ACKERMANN:
+        if scale != 1.0:  # a publisher's degrees, or its sign the other way (positive right)
+            command = scale * command
+            notes.append(f"{choice.steering}: steering_angle x {scale:g} ([ros] steering_scale)")
+        if vehicle is not None and {"offset", "gain"} & set(vehicle.raw.get("steering", {})):
+            warnings.append(f"the vehicle file's [steering] offset and gain map a servo command; {choice.steering} is "
+                            "an AckermannDrive angle in rad, so they are not used (its unit or sign: [ros] "
+                            "steering_scale, e.g. 0.0174533 for degrees, -1 for positive right)")
+    elif "steering_scale" in table:
+        raise InputError(f"{where}: [ros] steering_scale is for an AckermannDrive angle; {choice.steering} is a servo "
+                         "command, which the vehicle file's [steering] offset and gain map (docs/ros.md)")
     # the servo holds each command until the next: the staircase's mean over each sample period, which
     # the models' input (lines between samples) puts at its own time (stid.held_command)
     sig["steer"] = interval_means(st_t, command, grid, 1.0 / rate)
@@ -195,8 +213,8 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
 
     if choice.steering_type == ACKERMANN and peak > NOT_RADIANS:  # (a new user's bag in degrees: fitted to -88% ay)
         raise InputError(not_radians(where, choice.steering, peak) + " AckermannDrive's steering_angle is in rad "
-                         "(REP 103): have its publisher send rad; a run kept as per-topic CSVs (docs/ros.md) can be "
-                         "read in rad with [ros.fields] \"drive.steering_angle\" = \"<its column> * 0.0174533\"")
+                         "(REP 103): have its publisher send rad, or read this bag's in degrees with [ros] "
+                         "steering_scale = 0.0174533 in the vehicle file")
     if choice.steering_type == FLOAT64:
         from stid.steer_units import road_wheel_angle
 

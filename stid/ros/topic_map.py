@@ -11,6 +11,7 @@ accel_unit = "m/s^2"           # or "g" (the VESC driver's sensors/imu/raw)
 gyro_unit = "rad/s"            # or "deg/s" (the VESC driver's sensors/imu/raw)
 stamps = "header"              # or "receive": time messages by the bag's receive times
 rate_hz = 100.0                # the run's grid; the IMU's own rate when not given
+steering_scale = 1.0           # road-wheel angle per steering_angle: 0.0174533 (degrees), -1 (positive right)
 
 [ros.fields]                   # one CSV per topic (stid.ros.topic_files): field = column
 stamp = "s + ns * 1e-9"
@@ -28,7 +29,8 @@ from dataclasses import dataclass, field
 from stid.errors import InputError, unknown_key
 from stid.ros.message_types import ACKERMANN, FLOAT64, IMU, ODOMETRY
 
-KEYS = ("imu", "odometry", "steering", "imu_axes", "accel_unit", "gyro_unit", "stamps", "rate_hz", "fields")
+KEYS = ("imu", "odometry", "steering", "imu_axes", "accel_unit", "gyro_unit", "stamps", "rate_hz", "steering_scale",
+        "fields")
 TOPIC_KEYS = ("imu", "odometry", "steering")
 UNITS = {"accel_unit": ("m/s^2", "g"), "gyro_unit": ("rad/s", "deg/s"), "stamps": ("header", "receive")}
 AXES = ("x", "y", "z", "-x", "-y", "-z")
@@ -65,6 +67,11 @@ def check_table(table: dict, where: str) -> None:
         elif key == "rate_hz":
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
                 raise InputError(f"{where}: [ros] rate_hz must be a positive number [Hz], got {value!r}")
+        elif key == "steering_scale":
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value == 0:
+                raise InputError(f"{where}: [ros] steering_scale must be a number, the road-wheel angle [rad] per unit "
+                                 f"of the AckermannDrive steering_angle (0.0174533 for degrees, -1 for positive "
+                                 f"right), got {value!r}")
         elif key == "imu_axes":
             axes_matrix(value, where)
         elif key == "fields":
