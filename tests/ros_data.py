@@ -183,6 +183,7 @@ class Layout:
     steer_deg: bool = False  # the Ackermann steering_angle published in degrees (a driver's mistake)
     imu_silent_s: tuple = ()  # (from, to) [s]: the IMU driver published nothing then (it stalled)
     imu_stamp_jitter_s: float = 0.0  # rms of a random error in each IMU header stamp (the sample is on time)
+    imu_lost_every: int = 0  # every so many IMU messages one is lost (never reaches the bag)
 
 
 def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
@@ -236,6 +237,8 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
     jitter = layout.imu_stamp_jitter_s * np.random.default_rng(17).standard_normal(len(t_imu))
     for k, t in enumerate(t_imu):
         if layout.imu_silent_s and layout.imu_silent_s[0] <= t < layout.imu_silent_s[1]:
+            continue
+        if layout.imu_lost_every and k % layout.imu_lost_every == layout.imu_lost_every - 1:
             continue
         # a stamp that goes back (a clock step in the driver): received in its place all the same
         stamp_t = (t - 0.012 if k == layout.backwards_at else t) + jitter[k]

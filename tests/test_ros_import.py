@@ -288,6 +288,24 @@ def test_an_imu_whose_stamps_jitter_keeps_its_own_instants(tmp_path):
     assert abs(delay) < 3 * se, (delay, se)
 
 
+def test_a_clocked_imus_lost_samples_are_counted_and_left_out(tmp_path):
+    """A 100 Hz IMU that loses one message in 20: the grid stays on its instants at its rate (the
+    median interval gave a trial user's 99.5 Hz), each lost sample's place is left out of the fit
+    (it was interpolated from its neighbours 20 ms apart and fitted as a measurement), and a note
+    counts them."""
+    d = rd.drive(duration=30.0, imu_hz=100, imu_offset_ms=3, seed=3)
+    (run,) = load_file(rd.write_bag(d, tmp_path / "run", rd.Layout(imu_lost_every=20, imu_stamp_jitter_s=0.0005)),
+                       _vehicle(tmp_path))
+    assert run.fs == pytest.approx(100.0, rel=1e-4)
+    said = [n for n in run.meta["notes"] if "samples lost" in n]
+    assert said and "(5.0%)" in said[0], run.meta["notes"]
+    lost_t = d.t[d.imu_k][19::20] - (run.meta["stamp0_ns"] - rd.EPOCH_NS) * 1e-9  # on the run's clock
+    lost_t = lost_t[(lost_t > 0.5) & (lost_t < run.t[-1] - 0.5)]
+    at = np.round(lost_t * 100).astype(int)
+    assert np.all(np.abs(run.t[at] - lost_t) < 0.002) and not run.valid[at].any()
+    assert run.valid.mean() == pytest.approx(0.95, abs=0.003)
+
+
 def test_rates_differ_and_jitter(tmp_path):
     """IMU 100 Hz, odometry 33 Hz, command 50 Hz, none on the others' instants."""
     d = rd.drive(duration=SECONDS, imu_hz=100, odom_hz=33)

@@ -144,7 +144,7 @@ def filtered(run: Run, target_fs: float = TARGET_FS, names=("steer", "ay", "r", 
     m = min(len(v) for v in out.values())
     out = {k: v[:m] for k, v in out.items()}
     valid = np.ones(len(run.t), bool) if run.valid is None else np.asarray(run.valid, bool)
-    if not valid.all():
+    if not valid.all() and smooth is not cols:  # (unfiltered, a placeholder spoils its own sample only)
         reach = int(np.ceil(GAP_REACH_S * fs))
         lost = (~valid).astype(float)
         valid = segments.uniform_filter1d(lost, 2 * reach + 1) == 0.0
@@ -267,7 +267,7 @@ def _dynamic_stretches(runs, min_s, target_fs, trim_s, constant_speed, method) -
     if lost:
         total = sum(len(s.t) for s in moving)
         notes.append(f"{100 * lost / total:.1f}% of the fitted samples are out of the cost: not measured (lost on "
-                     f"the link, or a row the file lacks or holds no number in) or within {1e3 * GAP_REACH_S:.0f} ms "
+                     f"the link or by a driver, or a row a file lacks or holds no number in) or within {1e3 * GAP_REACH_S:.0f} ms "
                      "of such a sample, where the prefilter smears it")
     return Stretches(moving, notes)
 

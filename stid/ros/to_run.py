@@ -76,7 +76,13 @@ def load_bag(path, vehicle) -> list[Run]:
     sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings, fine)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
-    notes.insert(0, _grid_note(parts, times, rate, grid, choice))
+    if imu_line[2] and rate == imu_rate:  # a clocked IMU's lost samples: no message holds their place
+        imu_t = times[choice.imu]
+        i = np.clip(np.searchsorted(imu_t, grid), 1, len(imu_t) - 1)
+        valid &= np.minimum(np.abs(grid - imu_t[i - 1]), np.abs(imu_t[i] - grid)) < 0.5 * imu_line[1]
+        notes.append(f"{choice.imu}: {imu_line[2]} of its {imu_line[2] + len(imu_t)} samples lost "
+                     f"({100 * imu_line[2] / (imu_line[2] + len(imu_t)):.1f}%): their places are left out of the fit")
+    notes.insert(0, _grid_note(parts, times, rate, grid, choice, imu_rate))
     quiet = np.diff(times[choice.steering]) > SENSOR_CUT_S
     if quiet.any():
         notes.append(f"{choice.steering} was silent {int(quiet.sum())} time(s), up to "
@@ -136,7 +142,8 @@ REGULAR_SHARE = 0.9  # of the IMU's intervals within a quarter period of a whole
 
 
 def _imu_line(imu_t: np.ndarray) -> tuple:
-    """``(t0, period)`` [s] of the IMU's sampling. A clocked IMU whose stamps jitter: the line
+    """``(t0, period, lost)`` of the IMU's sampling [s] and how many of its samples are missing
+    (0 where it keeps no clock). A clocked IMU whose stamps jitter: the line
     through its stamps against their sample count (a lost message counted by its interval's
     length). Its median interval is not its period: a trial user's 30 Hz IMU with 0.5 ms of stamp
     jitter had a median 8 us short, and a grid at that rate drifted half a period off the samples
@@ -146,13 +153,13 @@ def _imu_line(imu_t: np.ndarray) -> tuple:
     d = np.diff(imu_t)
     med = float(np.median(d)) if len(d) else 0.0
     if len(d) < 2 or not med > 0:
-        return float(imu_t[0]), med
+        return float(imu_t[0]), med, 0
     periods = d / med
     if np.mean(np.abs(periods - np.round(periods)) < 0.25) < REGULAR_SHARE:
-        return float(imu_t[0]), med
+        return float(imu_t[0]), med, 0
     k = np.concatenate([[0.0], np.cumsum(np.maximum(np.round(periods), 1.0))])
     period, t0 = np.polyfit(k, imu_t, 1)
-    return float(t0), float(period) if period > 0 else med
+    return float(t0), float(period) if period > 0 else med, int(k[-1]) + 1 - len(imu_t)
 
 
 def _grid(times, imu_line, rate, where) -> np.ndarray:
@@ -170,7 +177,7 @@ def _grid(times, imu_line, rate, where) -> np.ndarray:
                          + ("; their stamps are days apart, as when a driver stamps by its own clock (time since its "
                             "boot): [ros] stamps = \"receive\" times every topic by the bag's receive times"
                             if other_clock else ""))
-    line0, period = imu_line
+    line0, period, _ = imu_line
     t0 = line0 + np.ceil((t0 - line0) / period - 1e-6) * period  # the first IMU instant in the overlap
     return t0 + np.arange(int(np.floor((t1 - t0) * rate + 1e-9)) + 1) / rate
 
@@ -494,8 +501,9 @@ def _pieces(grid, times):
     return pieces
 
 
-def _grid_note(parts, times, rate, grid, choice) -> str:
+def _grid_note(parts, times, rate, grid, choice, imu_rate) -> str:
     rates = {t: 1.0 / float(np.median(np.diff(tt))) for t, tt in times.items()}
+    rates[parts["imu"]] = imu_rate  # (its clock's: _imu_line)
     last = max(t[-1] for t in times.values())
     return (f"resampled to a uniform {rate:.1f} Hz grid: ay, ax, r from {parts['imu']} ({rates[parts['imu']]:.0f} Hz) "
             f"and vx from {parts['odometry']} ({rates[parts['odometry']]:.0f} Hz) interpolated linearly, steer from "
