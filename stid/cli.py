@@ -435,7 +435,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_flash)
 
     p = sub.add_parser("export", help="write a logged run as CSV in SI units (the import contract)")
-    p.add_argument("run", help="RUN.mcap written by stid-log")
+    p.add_argument("run", help="a run: RUN.mcap written by stid-log, a ROS bag (docs/ros.md) or another logger's CSV")
     p.add_argument("--csv", required=True, help="output CSV path (- for stdout)")
     p.add_argument("--vehicle", help="vehicle TOML (steering and sensor calibration; default: datasheet values)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing CSV (never a recorded run)")

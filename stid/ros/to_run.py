@@ -364,7 +364,9 @@ def _body_axes(acc, gyro, table, vehicle, where, notes):
     if abs(norm - 1.0) < 0.15 and table.get("accel_unit") != "g":
         raise InputError(f"{where}: the IMU's accelerometer reads {norm:.2f} at rest-level: that is gravity in g, "
                          "not m/s^2 (REP 145 wants m/s^2; the VESC driver's sensors/imu/raw sends g): add "
-                         "accel_unit = \"g\" to the vehicle file's [ros]")
+                         "accel_unit = \"g\" to the vehicle file's [ros]"
+                         + (", and gyro_unit = \"deg/s\" (that driver's gyro unit; stid checks it against the "
+                            "kinematics once the accelerometer reads)" if table.get("gyro_unit") != "deg/s" else ""))
     if abs(norm - G) < 0.2 * G:
         axis = int(np.argmax(np.abs(mean)))
         if axis != 2 or mean[2] < 0:
