@@ -237,6 +237,11 @@ def test_the_diagnosis_verdict_says_an_error_no_effect_explains():
     assert "nothing missing" not in text and unexplained(json.dumps(doc))
     doc["unexplained"]["significant"] = False
     assert "nothing missing from bicycle" in verdict(json.dumps(doc), 40.0) and not unexplained(json.dumps(doc))
+    # a candidate whose fit stopped short: what it explains is not known (stid.present says the same)
+    doc["unexplained"]["significant"] = True
+    doc["candidates"] = [{"effect": "steer_offset", "significant": False, "converged": False}]
+    text = verdict(json.dumps(doc), 40.0)
+    assert "the catalogue is not ruled out" in text and "bicycle+steer_offset did not converge" in text, text
 
 
 def test_the_diagnosis_verdict_of_a_model_above_its_noise_floor_claims_nothing():

@@ -102,6 +102,11 @@ def verdict(output: str, driving_s: float) -> str | None:
     at = f"(stid diagnose, {driving_s:.0f} s of driving)"
     if not effects:
         model = doc.get("model", "the model")
+        stuck = [c["effect"] for c in doc.get("candidates", []) if c.get("converged") is False]
+        if stuck and _unexplained(doc):  # (stid.present: the catalogue is not ruled out while one stopped short)
+            return (f"diagnosis: nothing named, and the catalogue is not ruled out: the fit of "
+                    f"{', '.join(f'{model}+{e}' for e in stuck)} did not converge; stid diagnose on the file says "
+                    f"more {at}")
         if _unexplained(doc):
             gaps = ", ".join(f"{o} {doc['fit'][o]:.1f}% where the noise allows {doc['noise_floor'][o]:.1f}%"
                              for o in ("ay", "r") if o in doc.get("fit", {}) and o in doc.get("noise_floor", {}))
