@@ -77,16 +77,21 @@ def load_bag(path, vehicle) -> list[Run]:
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
     if imu_line[2] and rate == imu_rate:  # a clocked IMU's lost samples: no message holds their place
-        imu_t = times[choice.imu]
-        i = np.clip(np.searchsorted(imu_t, grid), 1, len(imu_t) - 1)
-        valid &= np.minimum(np.abs(grid - imu_t[i - 1]), np.abs(imu_t[i] - grid)) < 0.5 * imu_line[1]
-        notes.append(f"{choice.imu}: {imu_line[2]} of its {imu_line[2] + len(imu_t)} samples lost "
-                     f"({100 * imu_line[2] / (imu_line[2] + len(imu_t)):.1f}%): their places are left out of the fit")
+        lost = _lost_samples(grid, times[choice.imu], imu_line[1])
+        valid &= ~lost
+        if lost.any():
+            n = int(lost.sum())
+            notes.append(f"{choice.imu}: {n} of its samples lost ({100 * n / len(grid):.1f}% of the run's; silences "
+                         f"over {SENSOR_CUT_S:g} s not counted: they cut the run): their places are left out of the fit")
     notes.insert(0, _grid_note(parts, times, rate, grid, choice, imu_rate))
-    quiet = np.diff(times[choice.steering]) > SENSOR_CUT_S
-    if quiet.any():
-        notes.append(f"{choice.steering} was silent {int(quiet.sum())} time(s), up to "
-                     f"{np.diff(times[choice.steering]).max():.1f} s: the servo holds its last command, so the "
+    st_t, imu_t = times[choice.steering], times[choice.imu]
+    quiet = np.flatnonzero(np.diff(st_t) > SENSOR_CUT_S)
+    # (a silence of every topic, a pause in the recording, cuts the run: not the command's to hold)
+    quiet = [k for k in quiet if np.sum((imu_t > st_t[k]) & (imu_t < st_t[k + 1])) * imu_line[1]
+             > 0.5 * (st_t[k + 1] - st_t[k])]
+    if quiet:
+        notes.append(f"{choice.steering} was silent {len(quiet)} time(s) while the car's sensors went on, up to "
+                     f"{max(st_t[k + 1] - st_t[k] for k in quiet):.1f} s: the servo holds its last command, so the "
                      "command is held there too")
     runs = []
     for k, (a, b) in enumerate(_pieces(grid, sensors)):
@@ -160,6 +165,20 @@ def _imu_line(imu_t: np.ndarray) -> tuple:
     k = np.concatenate([[0.0], np.cumsum(np.maximum(np.round(periods), 1.0))])
     period, t0 = np.polyfit(k, imu_t, 1)
     return float(t0), float(period) if period > 0 else med, int(k[-1]) + 1 - len(imu_t)
+
+
+def _lost_samples(grid, imu_t, period) -> np.ndarray:
+    """True at the grid instants of a clocked IMU's lost samples: inside an interval between two of
+    its messages that holds most of a period beyond one (1.75 periods: a jittered pair 1.5 apart
+    is no loss; a receive-timed IMU's jitter moves messages, it loses none), farther than half a
+    period from both, in a silence short of SENSOR_CUT_S (a longer one cuts the run, and is said
+    as such)."""
+    d = np.diff(imu_t)
+    gaps = np.flatnonzero((d >= 1.75 * period) & (d <= SENSOR_CUT_S))
+    lost = np.zeros(len(grid), bool)
+    for k in gaps:
+        lost |= (grid > imu_t[k] + 0.5 * period) & (grid < imu_t[k + 1] - 0.5 * period)
+    return lost
 
 
 def _grid(times, imu_line, rate, where) -> np.ndarray:
