@@ -93,6 +93,28 @@ _UNIT_ERRORS = (
 _UNIT_MATCH = 1.6
 
 
+BACKWARDS_SHARE = 0.8  # of the time a run moves faster than MOVING_MPS: a speed sign the other way
+
+
+def _mostly_backwards(run, source: str) -> str | None:
+    """The words for a run that would reverse for most of its driving: a speed whose sign is the
+    other way (a VESC's speed_to_erpm_gain negated, an odometry in another frame), not a car that
+    drives backwards. Taken as it is, the kinematic check blamed the IMU's axes, and its fix led to
+    the steering's sign and then to "no stretch of driving" (a trial user's negated odometry)."""
+    vx = np.asarray(run.vx, float)
+    moving = np.abs(vx) > MOVING_MPS
+    if moving.sum() < 2 * run.fs or np.mean(vx[moving] < 0) < BACKWARDS_SHARE:
+        return None
+    where = run.meta.get("source", run.name)
+    share = 100 * float(np.mean(vx[moving] < 0))
+    fix = {"csv": "negate vx (ISO 8855: forward positive)",
+           "ros": "the odometry's twist.linear.x is negative while the car drives forward: a VESC "
+                  "speed_to_erpm_gain of the wrong sign, or an odometry not in the car's frame (REP 105); "
+                  "[ros] speed_scale = -1 in the vehicle file reads it"}.get(source, "check the wheel-speed sensor's calibration")
+    return (f"{where}: the forward speed is negative for {share:.0f}% of the time the car moves faster than "
+            f"{MOVING_MPS:g} m/s: the car would be reversing nearly all the time; its sign is the other way: {fix}")
+
+
 def check_kinematics(run, source: str = "csv") -> None:
     """Raise InputError when ay, r and steer disagree in unit or sign.
 
@@ -108,6 +130,9 @@ def check_kinematics(run, source: str = "csv") -> None:
         ``"csv"`` (the user chose units and signs: name the column to fix) or
         ``"mcap"`` (stid converted them: point at the sensor calibration).
     """
+    backwards = _mostly_backwards(run, source)
+    if backwards:
+        raise InputError(backwards)
     est = _kinematic_gains(run)
     if isinstance(est, str):
         if source in ("csv", "ros"):

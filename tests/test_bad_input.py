@@ -107,6 +107,8 @@ CORRUPTIONS = {
     "SAE lateral acceleration (y right)": (lambda c: dict(c, ay=-c["ay"]), ["'ay'", "opposite sign", "negate ay"]),
     "steer positive right": (lambda c: dict(c, steer=-c["steer"]), ["'steer'", "opposite sign", "negate steer"]),
     "ay in g, SAE yaw rate": (lambda c: dict(c, ay=c["ay"] / 9.81, r=-c["r"]), ["'ay' looks like it is in g", "negate 'r'"]),
+    # (taken as reversing, the kinematic check blamed ay or r: a trial user's negated odometry)
+    "speed negated": (lambda c: dict(c, vx=-c["vx"]), ["forward speed is negative for 100%", "negate vx"]),
 }
 
 

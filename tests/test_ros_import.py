@@ -632,6 +632,19 @@ def test_a_steering_angle_in_degrees_is_refused_not_fitted(drive, tmp_path):
     assert "[ros.fields] maps the columns of one CSV per topic" in unused and "offset and gain" in unused, unused
 
 
+def test_an_odometry_speed_whose_sign_is_the_other_way_is_named_and_read(drive, tmp_path):
+    """A VESC speed_to_erpm_gain of the wrong sign: the car 'reverses' all the time. The kinematic
+    check blamed the IMU's axes, whose fix led to the steering's sign and then to 'no stretch of
+    driving' (a trial user's loop). The speed is named, and [ros] speed_scale = -1 reads it."""
+    flipped = dataclasses.replace(drive, odom_vx=-drive.odom_vx)
+    bag = rd.write_bag(flipped, tmp_path / "run", rd.Layout())
+    with pytest.raises(InputError, match=r"forward speed is negative .*twist.linear.x.*speed_scale = -1"):
+        load_file(bag, _vehicle(tmp_path))
+    (ref,) = load_file(rd.write_bag(drive, tmp_path / "ok", rd.Layout()), _vehicle(tmp_path))
+    (run,) = load_file(bag, _vehicle(tmp_path, "[ros]\nspeed_scale = -1\n"))
+    assert np.allclose(run.vx, ref.vx)
+
+
 def test_a_steering_angle_published_positive_right_is_read_with_its_sign(drive, tmp_path):
     """The refusal of a command whose sign is the other way names [ros] steering_scale = -1 for an
     AckermannDrive angle, which reads it."""

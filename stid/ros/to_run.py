@@ -212,7 +212,10 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     sig = {"ax": np.interp(grid, imu_t, acc[0]), "ay": np.interp(grid, imu_t, acc[1]),
            "r": np.interp(grid, imu_t, gyro[2])}
     od, od_t = cols[choice.odometry], times[choice.odometry]
-    sig["vx"] = np.interp(grid, od_t, _forward_speed(od, notes, choice.odometry))
+    speed_scale = float(table.get("speed_scale", 1.0))
+    sig["vx"] = np.interp(grid, od_t, speed_scale * _forward_speed(od, notes, choice.odometry))
+    if speed_scale != 1.0:
+        notes.append(f"{choice.odometry}: speed x {speed_scale:g} ([ros] speed_scale)")
     tilt = _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
     _odometry_yaw(od, od_t, imu_t, gyro[2], choice, notes)
     st_t = times[choice.steering]

@@ -12,6 +12,7 @@ gyro_unit = "rad/s"            # or "deg/s" (the VESC driver's sensors/imu/raw)
 stamps = "header"              # or "receive": time messages by the bag's receive times
 rate_hz = 100.0                # the run's grid; the IMU's own rate when not given
 steering_scale = 1.0           # road-wheel angle per steering_angle: 0.0174533 (degrees), -1 (positive right)
+speed_scale = 1.0              # forward speed per twist.linear.x: -1 (a speed_to_erpm_gain of the wrong sign)
 
 [ros.fields]                   # one CSV per topic (stid.ros.topic_files): field = column
 stamp = "s + ns * 1e-9"
@@ -30,7 +31,7 @@ from stid.errors import InputError, unknown_key
 from stid.ros.message_types import ACKERMANN, FLOAT64, IMU, ODOMETRY
 
 KEYS = ("imu", "odometry", "steering", "imu_axes", "accel_unit", "gyro_unit", "stamps", "rate_hz", "steering_scale",
-        "fields")
+        "speed_scale", "fields")
 TOPIC_KEYS = ("imu", "odometry", "steering")
 UNITS = {"accel_unit": ("m/s^2", "g"), "gyro_unit": ("rad/s", "deg/s"), "stamps": ("header", "receive")}
 AXES = ("x", "y", "z", "-x", "-y", "-z")
@@ -72,6 +73,11 @@ def check_table(table: dict, where: str) -> None:
                 raise InputError(f"{where}: [ros] steering_scale must be a number, the road-wheel angle [rad] per unit "
                                  f"of the AckermannDrive steering_angle (0.0174533 for degrees, -1 for positive "
                                  f"right), got {value!r}")
+        elif key == "speed_scale":
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value == 0:
+                raise InputError(f"{where}: [ros] speed_scale must be a number, the forward speed [m/s] per unit of "
+                                 f"the odometry's twist.linear.x (-1 for a speed whose sign is the other way), got "
+                                 f"{value!r}")
         elif key == "imu_axes":
             axes_matrix(value, where)
         elif key == "fields":
