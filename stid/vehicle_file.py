@@ -21,6 +21,7 @@ mount_roll = 0.0                  # rad, accelerometer mounting rotation about x
 mount_pitch = 0.0                 # rad, about y
 accel_bandwidth_hz = 50.0         # ADXL335 output filter (5 uF / C; 0.1 uF -> 50 Hz); 0 = none
 gyro_bandwidth_hz = 88.0          # LISY300AL internal low-pass
+accel_filter_order = 1            # 1: first-order (RC); 2: second-order Butterworth (an IMU's digital filter)
 
 [params]              # start / bounds of model parameters in every fit (docs/params_in_the_vehicle_file.md)
 Cf = { init = 400.0, min = 20.0, max = 5000.0 }
@@ -101,7 +102,7 @@ TABLES = {
     "steering": ("center_us", "us_per_rad", "offset", "gain"),
     "wheel": ("radius", "pulses_per_rev"),
     "sensors": ("accel_offset", "gyro_zero_v", "gyro_v_per_dps", "mount_roll", "mount_pitch",
-                "accel_bandwidth_hz", "gyro_bandwidth_hz"),
+                "accel_bandwidth_hz", "gyro_bandwidth_hz", "accel_filter_order", "gyro_filter_order"),
     "params": None,  # model parameter names: checked against the models (_check_params)
     "board": None,  # the board's HELLO, declared for a log none reached (host/hello_supply.py checks it)
     "csv": None,  # contract column -> source expression (stid.csv_map checks it)
@@ -137,6 +138,10 @@ def _check_keys(doc, where) -> None:
                 raise InputError(f"{where}: [{table}] {key} must be a number, got {value!r}")
             elif key in _NONNEGATIVE and value < 0:
                 raise InputError(f"{where}: [{table}] {key} must be 0 (no filter) or a bandwidth in Hz, got {value}")
+            elif key.endswith("_filter_order") and value not in (1, 2):
+                raise InputError(f"{where}: [{table}] {key} must be 1 (a first-order low-pass: an RC filter, the "
+                                 f"ADXL335's capacitor) or 2 (a second-order Butterworth: many IMUs' digital "
+                                 f"low-pass), got {value}")
 
 
 def _is_number(v) -> bool:

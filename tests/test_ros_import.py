@@ -311,6 +311,49 @@ def test_a_clocked_imus_lost_samples_are_counted_and_left_out(tmp_path):
     assert run.valid is None and not any("lost" in n for n in run.meta["notes"]), run.meta["notes"]
 
 
+def test_an_imus_second_order_low_pass_is_declared_and_modelled(tmp_path):
+    """An IMU driver's digital low-pass of second order (Butterworth, 30 Hz) on ay and r: the chain
+    knew first-order filters only, and one declared so leaves its delay out: here 2.7 ms (z = 88) and Iz
+    +6% (its interval stretched by the delay allowance to hold it); a trial user's
+    fits read 'the steer is timed late' at z = -13 and named a sensor_delay that was not there.
+    [sensors] accel_filter_order = 2 / gyro_filter_order = 2 model it: every interval holds the truth
+    and no delay is left."""
+    from scipy import signal
+
+    from stid.fit.fitting import fit
+
+    d = rd.drive(duration=40.0, imu_hz=200, imu_offset_ms=2, servo_tau=0.05, seed=6)
+    sos = signal.butter(2, 30.0, fs=rd.BASE_HZ, output="sos")  # the driver's filter, run at 1 kHz
+    rng = np.random.default_rng(6)
+    d.imu_ay = signal.sosfilt(sos, d.ay)[d.imu_k] + 0.05 * rng.standard_normal(len(d.imu_k))
+    d.imu_r = signal.sosfilt(sos, d.r)[d.imu_k] + 0.005 * rng.standard_normal(len(d.imu_k))
+    bag = rd.write_bag(d, tmp_path / "run", rd.Layout())
+    vehicle = _vehicle(tmp_path, "[sensors]\naccel_bandwidth_hz = 30\ngyro_bandwidth_hz = 30\n"
+                                 "accel_filter_order = 2\ngyro_filter_order = 2\n")
+    (run,) = load_file(bag, vehicle)
+    res = fit([run], vehicle, "bicycle+actuator_lag", "time")
+    assert any("ay second-order (Butterworth) 30 Hz" in n for n in res.notes), res.notes
+    got = dict(zip(res.names, zip(res.values, res.ci95)))
+    for name, truth in (("Cf", rd.CF), ("Cr", rd.CR), ("Iz", rd.IZ), ("tau_steer", 0.05)):
+        value, (lo, hi) = got[name]
+        assert abs(value / truth - 1) < 0.006 and lo <= truth <= hi, (name, got[name], truth)
+    delay, se = res.extra.get("delay_seen_ms", (0.0, 1.0))
+    assert abs(delay) < 3 * se or abs(delay) < 0.3, (delay, se)
+
+
+def test_a_second_order_sensor_filter_is_a_butterworth():
+    """The model's second-order output filter is the analog Butterworth scipy designs."""
+    from scipy import signal
+
+    from stid.models.linsys import LinSys
+
+    sys = LinSys(np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.ones((1, 1)), [], ["delta"], ["ay"])
+    f = np.array([1.0, 10.0, 30.0, 60.0, 120.0])
+    got = sys.filter_output("ay", 30.0, order=2).freqresp(f)[0]
+    _, want = signal.freqs(*signal.butter(2, 2 * np.pi * 30.0, analog=True), worN=2 * np.pi * f)
+    assert np.allclose(got, want, rtol=1e-9)
+
+
 def test_rates_differ_and_jitter(tmp_path):
     """IMU 100 Hz, odometry 33 Hz, command 50 Hz, none on the others' instants."""
     d = rd.drive(duration=SECONDS, imu_hz=100, odom_hz=33)

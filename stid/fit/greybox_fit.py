@@ -111,7 +111,9 @@ class _Problem:
             chain = pc.get("sensors") or sensor_chain.from_vehicle(vehicle)
             bw = {1: float(chain.get("ay", 0.0) or 0.0), 2: float(chain.get("r", 0.0) or 0.0)}
             fs = 1.0 / (pc["t"][1] - pc["t"][0])
-            self.filters.append({col: signal.bilinear([2 * np.pi * f], [1, 2 * np.pi * f], fs)
+            order = {1: sensor_chain.order(chain, "ay"), 2: sensor_chain.order(chain, "r")}
+            self.filters.append({col: (signal.butter(2, f, fs=fs) if order[col] == 2 else
+                                       signal.bilinear([2 * np.pi * f], [1, 2 * np.pi * f], fs))
                                  for col, f in bw.items() if 0 < f < float("inf")})
 
     def simulate(self, p, i):

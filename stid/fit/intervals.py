@@ -281,9 +281,11 @@ class DelayCheck:
         seen = f"{abs(self.delay_ms):.2f} ms (std. error {self.se_ms:.2f}, z = {self.z:.0f})"
         if self.delay_ms > 0:
             return (f"the outputs answer the steer {seen} later than the model has them (a servo's lag or dead "
-                    "time, a sensor's delay: `stid diagnose` names which)")
+                    "time, a sensor's delay: `stid diagnose` names which; or a sensor filter declared faster or of "
+                    "a lower order than it is: [sensors])")
         return (f"the outputs answer the steer {seen} earlier than the model has them: the steer is timed late (a "
-                "command timed by its receive time, a logger's clock)")
+                "command timed by its receive time, a logger's clock), or a sensor filter is declared slower or of "
+                "a higher order than it is ([sensors])")
 
 
 def delay_allowance(J: np.ndarray, r: np.ndarray, probe: np.ndarray, cov_of, change_at) -> DelayCheck:

@@ -22,6 +22,11 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den))
 
 
+# A delay the data show beyond the model's below this is not worth an effect: it moves the
+# parameters by less than the intervals allow for, and a speed's or a filter's timing makes one.
+DELAY_WORTH_MS = 1.0
+
+
 @dataclass
 class Prediction:
     """Measured and modelled outputs on one stretch (kept for compare, diagnose, report)."""
@@ -238,8 +243,16 @@ class FitResult:
         if seen is None or self.delay_allowance is None:
             return ""
         way = "later" if seen[0] > 0 else "earlier"
-        fix = ("fit +sensor_delay to take it in" if seen[0] > 0 else
-               "the steer is timed late (a command timed by its receive time?)")
+        if abs(seen[0]) < DELAY_WORTH_MS:  # (a trial user was sent to fit +sensor_delay for 0.12 ms of none)
+            fix = (f"under {DELAY_WORTH_MS:g} ms, too little to add an effect for (a speed measured coarsely or "
+                   "late, a sensor filter declared of another order, move it so)")
+        elif "sensor_delay" in self.model.split("+"):
+            fix = ("beyond its own sensor_delay: a sensor filter of another order or bandwidth than the vehicle "
+                   "file's [sensors] declares shows so (accel_filter_order, gyro_filter_order)")
+        else:
+            fix = ("fit +sensor_delay to take it in" if seen[0] > 0 else
+                   "the steer is timed late (a command timed by its receive time?), or a sensor filter is declared "
+                   "slower or of a higher order than it is ([sensors])")
         return (f"the outputs answer the steer {abs(seen[0]):.2f} ms (std. error {seen[1]:.2f}) {way} than "
                 f"{self.model} has them: its intervals allow for it; {fix}")
 

@@ -101,7 +101,7 @@ class Model:
         from stid import sensor_chain
 
         chain = sensor_chain.from_vehicle(vehicle)
-        self.sensor_bandwidth = {"ay": chain["ay"], "r": chain["r"]}
+        self.sensor_bandwidth = {k: v for k, v in chain.items() if k != "source"}
         if not self._law_known:
             self._try_users_effects()
 
@@ -186,10 +186,11 @@ class Model:
         for e in self._ordered:
             if e.stage in ("input", "output") and not (servo_apart and e in self._servo_blocks):
                 sys = e.apply(sys, p, ctx)
+        chain = self.sensor_bandwidth if sensors is None else sensors
         for out in MEASURED:
-            f = float((self.sensor_bandwidth if sensors is None else sensors).get(out, 0.0) or 0.0)
+            f = float(chain.get(out, 0.0) or 0.0)
             if 0 < f < float("inf"):
-                sys = sys.filter_output(out, f)
+                sys = sys.filter_output(out, f, int(chain.get(f"{out}_order", 1)))
         return sys
 
     def freqresp(self, p: dict, f_hz: np.ndarray, vx: float, sensors: dict | None = None) -> np.ndarray:
