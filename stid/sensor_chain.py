@@ -93,7 +93,8 @@ def undeclared_warnings(runs, vehicle) -> list:
             "vehicle file declares none, so the model's outputs are not filtered. If the sensors filtered "
             "what was logged (an IMU's digital low-pass, an analog output filter), declare those filters' "
             "bandwidths in Hz, as the logging setup configured them, in the vehicle file ([sensors] "
-            "accel_bandwidth_hz, gyro_bandwidth_hz; a CSV from stid export: the values it printed; from "
+            "accel_bandwidth_hz, gyro_bandwidth_hz, and accel_filter_order, gyro_filter_order = 2 for a "
+            "second-order Butterworth; a CSV from stid export: the values it printed; from "
             "stid-sim --csv: its simulated ADXL335 and LISY300AL, 50 and 88 Hz); if the data are truly unfiltered, declare 0 for both to say so"]
 
 
