@@ -197,7 +197,8 @@ class GeometryCheck:
         if self.shown:  # significant, but of the other sign: not the geometry itself
             return ("the data show a front force that changes with the square of the steer (force x (1 + kappa "
                     f"delta^2): {kappa}), of the opposite sign to the large-angle geometry: something the model "
-                    "leaves out that the geometry's allowance may not cover")
+                    "or the data leave out that the geometry's allowance may not cover (a linkage, or a speed "
+                    "measured late or coarsely: wheel odometry at 30 Hz moved it so on exactly linear cars)")
         seen = ("the parameters move the outputs as it would" if not np.isfinite(self.se) else kappa)
         return ("the data cannot rule out the large-angle geometry every car has and the linear model leaves "
                 f"out (a front force that changes with the square of the steer, force x (1 + kappa delta^2): {seen})")

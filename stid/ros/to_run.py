@@ -526,8 +526,10 @@ def _pieces(grid, times):
 
 
 def _grid_note(parts, times, rate, grid, choice, imu_rate) -> str:
-    rates = {t: 1.0 / float(np.median(np.diff(tt))) for t, tt in times.items()}
-    rates[parts["imu"]] = imu_rate  # (its clock's: _imu_line)
+    # messages per second over the topic's span (a planner's bursts: its median interval read 91 Hz for
+    # 43.5 Hz); the IMU's clock (_imu_line)
+    rates = {t: (len(tt) - 1) / max(float(tt[-1] - tt[0]), 1e-9) for t, tt in times.items()}
+    rates[parts["imu"]] = imu_rate
     last = max(t[-1] for t in times.values())
     return (f"resampled to a uniform {rate:.1f} Hz grid: ay, ax, r from {parts['imu']} ({rates[parts['imu']]:.0f} Hz) "
             f"and vx from {parts['odometry']} ({rates[parts['odometry']]:.0f} Hz) interpolated linearly, steer from "
