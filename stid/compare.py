@@ -91,7 +91,26 @@ def compare(runs, vehicle, models: list[str], method: str = "time", progress=Non
         floor, floor_se = floor.result() if floor is not None else noise_floor_uncertainty(judged_on)
     for e in entries:
         e["noise_floor"], e["noise_floor_stderr"] = floor, floor_se
+    _effective_bic(entries)
     return entries
+
+
+def _effective_bic(entries) -> None:
+    """Each entry's BIC with the residuals' effective sample size (``bic_effective``): the samples
+    over their integrated autocorrelation time, the most coloured model's, the same for all (as a
+    diagnosis's likelihood ratio counts them). Counted as independent, the samples of coloured
+    residuals made any gain a win: a delay of 0.12 ms (z = 2), gaining no fit point, was 'the best
+    of these by BIC' on a trial user's car that had none."""
+    import math
+
+    tau = max((max(e["_resid"].tau_int.values()) for e in entries), default=1.0)
+    n_eff = max(entries[0]["_resid"].n / max(tau, 1.0), 1.0) if entries else 1.0
+    for e in entries:
+        judged = e["_judged"]
+        err = np.vstack([p.y[p.keep] - p.yhat[p.keep] for p in judged.predictions])
+        var = np.maximum(np.mean(err ** 2, axis=0), 1e-300)
+        e["bic_effective"] = float(e["_result"].k * math.log(n_eff) + n_eff * np.sum(np.log(var)))
+        e["effective_samples"] = round(n_eff)
 
 
 def _fit_each(runs, vehicle, models, method, progress, validate, stretches, held) -> list[dict]:

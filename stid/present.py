@@ -240,7 +240,8 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
 def _verdict(entries, runs=None, vehicle_path=None) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
     # a fit that did not converge is no candidate for the best (unless none did)
-    best = min([e for e in entries if e.get("converged", True)] or entries, key=lambda e: e["bic"])
+    best = min([e for e in entries if e.get("converged", True)] or entries,
+               key=lambda e: e.get("bic_effective", e["bic"]))
 
     known = [o for o in ("ay", "r") if math.isfinite(fl[o])]
 
@@ -250,7 +251,10 @@ def _verdict(entries, runs=None, vehicle_path=None) -> str:
     gap = short(best)
     # one model has no rival to be best of: the verdict is its distance to the floor alone
     one = len(entries) == 1
-    text = f"verdict: {best['model']}" + ("" if one else " is the best of these by BIC")
+    text = f"verdict: {best['model']}" + ("" if one else " is the best of these by BIC"
+                                          + (f" (on {best['effective_samples']} effective samples: the residuals' "
+                                             "samples over their correlation time)" if "effective_samples" in best
+                                             else ""))
     if not known:
         if one:
             return text + ": with no noise floor on this data, nothing says how close it comes to a correct model"
