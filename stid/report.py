@@ -154,15 +154,32 @@ def overview_figure(runs):
     return fig
 
 
+# A stretch whose speed spans more than this either side of its median: its measured response
+# mixes speeds, and the model's, drawn at the median, is not what it should match.
+SPEED_SPREAD = 0.1
+
+
+def _speed_range(st):
+    lo, hi = np.percentile(np.asarray(st.vx_series, float), [5, 95])
+    return float(lo), float(hi)
+
+
 def bode_figure(chain, stretches, vehicle):
     n = len(stretches)
+    # the stretches nearest to one speed first: the model is drawn at each one's median speed
+    shown = sorted(stretches, key=lambda st: (_speed_range(st)[1] - _speed_range(st)[0]) / max(st.vx, 1e-9))[:3]
+    mixed = False
     fig, axes = plt.subplots(3, 2, figsize=(10, 7.5), sharex=True,
                              gridspec_kw={"height_ratios": [2, 2, 1]})
-    for k, st in enumerate(stretches[:3]):
+    for k, st in enumerate(shown):
         fr = estimate_frf(st)
         col = COLORS[(k + 1) % len(COLORS)]
+        lo, hi = _speed_range(st)
+        spread = max(hi - st.vx, st.vx - lo) > SPEED_SPREAD * st.vx
+        mixed = mixed or spread
+        label = (f"measured {lo:.1f}-{hi:.1f} m/s (models at {st.vx:.1f})" if spread else f"measured {st.vx:.1f} m/s")
         for j, out in enumerate(("ay/steer [(m/s^2)/rad]", "r/steer [1/s]")):
-            axes[0, j].loglog(fr.f, np.abs(fr.H[j]), ".", color=col, ms=4, label=f"measured {st.vx:.1f} m/s")
+            axes[0, j].loglog(fr.f, np.abs(fr.H[j]), ".", color=col, ms=4, label=label)
             axes[1, j].semilogx(fr.f, np.degrees(np.unwrap(np.angle(fr.H[j]))), ".", color=col, ms=4)
             axes[2, j].semilogx(fr.f, fr.coh[j], color=col, lw=1)
             styles = (":", "-.", "--", "-")
@@ -191,7 +208,10 @@ def bode_figure(chain, stretches, vehicle):
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     fig.suptitle("Frequency responses (H1, Welch) with coherence; one colour per stretch, one line style per "
-                 "model" + ("" if n <= 3 else f" (first 3 of {n} stretches)"))
+                 "model" + ("" if n <= 3 else f" (3 of {n} stretches, the nearest to one speed)")
+                 + ("\nwhere a stretch's speed varies, its measured response mixes speeds and the models' (at its "
+                    "median speed) is not what it should match: the time plots judge the fit" if mixed else ""),
+                 **({"fontsize": 10} if mixed else {}))
     _legend_below(fig, axes, ncol=3)
     fig.subplots_adjust(bottom=0.14)
     return fig
