@@ -418,9 +418,6 @@ BAD = {
                                  r'the IMU is turned 90 deg about z .*imu_axes = \["y", "-x", "z"\]'),
     "IMU upside down, not declared": (rd.Layout(imu_to_body=("x", "-y", "-z")), "",
                                       r"gravity is on the car's -z axis"),
-    "a NaN from the driver": (rd.Layout(nan_at=1234), "",
-                              r"/sensors/imu/raw has 1 message\(s\) whose linear_acceleration.y is not a number "
-                              r"\(NaN or inf; the first is message 1235 of 5000\)"),
     "VESC's g not declared": (rd.Layout(accel_g=True), "", r'that is gravity in g.*accel_unit = "g"'),
     "VESC's deg/s not declared": (rd.Layout(accel_g=True), '[ros]\naccel_unit = "g"\n',
                                   r"'r' looks like it is in deg/s; add gyro_unit = \"deg/s\""),
@@ -622,6 +619,36 @@ def test_public_real_log_in_its_original_format(tmp_path):
             assert a.fit[out] == pytest.approx(b.fit[out], abs=1.0)
 
 
+@pytest.mark.skipif(not (REAL / "original_ds1").is_dir(), reason="the real log arrives with tests/fixtures/real")
+def test_a_topic_csvs_empty_field_is_a_lost_message(tmp_path):
+    """One CSV per topic, a row of the IMU's with an empty field (the logger missed that reading):
+    refused ("fill or drop those rows") where a bag's NaN message is now taken as lost; so is it."""
+    import shutil
+    import tomllib
+
+    import pandas as pd
+
+    src = tmp_path / "ds1"
+    shutil.copytree(REAL / "original_ds1", src)
+    imu = pd.read_csv(src / "imuData.csv")
+    imu.loc[700, "ay"] = np.nan
+    imu.to_csv(src / "imuData.csv", index=False)
+    car = tomllib.loads((REAL / "vehicle.toml").read_text())
+    (tmp_path / "car.toml").write_text(
+        f"mass = {car['mass']}\na = {car['a']}\nb = {car['b']}\n\n[ros]\nimu = \"imuData.csv\"\n"
+        "odometry = \"odomData.csv\"\nsteering = \"commandData.csv\"\nimu_axes = [\"-y\", \"x\", \"z\"]\n"
+        "accel_unit = \"g\"\ngyro_unit = \"deg/s\"\n\n[ros.fields]\nstamp = \"s + ns * 1e-9\"\n"
+        + "".join(f"\"{f}\" = \"{c}\"\n" for f, c in (
+            ("linear_acceleration.x", "ax"), ("linear_acceleration.y", "ay"), ("linear_acceleration.z", "az"),
+            ("angular_velocity.x", "wx"), ("angular_velocity.y", "wy"), ("angular_velocity.z", "wz"),
+            ("twist.twist.linear.x", "vx"), ("twist.twist.linear.y", "vy"), ("twist.twist.angular.z", "wz"),
+            ("drive.steering_angle", "delta"))))
+    (run,) = load_file(src, load_vehicle(tmp_path / "car.toml"))
+    notes = " ".join(run.meta["notes"])
+    assert "imuData.csv has 1 message(s) whose linear_acceleration.y is not a number" in notes, notes
+    assert "dropped, as lost messages" in notes, notes
+
+
 def test_a_tilted_imu_is_said_and_calibrated_away(drive, contract, tmp_path):
     """An IMU board rolled 3 deg: the loader says the tilt with the lines that undo it;
     `stid calibrate` on the bag writes them; the bag then holds the contract's ay again."""
@@ -656,6 +683,19 @@ def test_a_level_imu_on_a_car_that_turns_steadily_is_not_called_tilted(tmp_path)
     assert np.mean(run.ay[moving]) > 0.4  # (the steady turn the trim makes)
     notes = " ".join(run.meta["notes"])
     assert "holds gravity" in notes and "deg off" not in notes and "tilted" not in notes, notes
+
+
+def test_a_message_a_driver_failed_to_fill_is_lost_not_a_refusal(drive, tmp_path):
+    """An IMU message whose ay is NaN (a driver that failed to read its sensor once): the bag was
+    refused ("cut those out of the bag"), as a CSV's empty field was. It carries no measurement,
+    as a message the link lost: dropped, said, and its place left out of the fit."""
+    (run,) = load_file(rd.write_bag(drive, tmp_path / "run", rd.Layout(nan_at=1234)), _vehicle(tmp_path))
+    notes = " ".join(run.meta["notes"])
+    assert "/sensors/imu/raw has 1 message(s) whose linear_acceleration.y is not a number" in notes, notes
+    assert "dropped, as lost messages" in notes and "1 of its samples lost" in notes, notes
+    t_lost = drive.t[drive.imu_k][1234] - (run.meta["stamp0_ns"] - rd.EPOCH_NS) * 1e-9
+    k = int(np.argmin(np.abs(run.t - t_lost)))
+    assert abs(run.t[k] - t_lost) < 1e-4 and not run.valid[k] and run.valid.sum() == len(run.t) - 1
 
 
 def test_a_steering_angle_in_degrees_is_refused_not_fitted(drive, tmp_path):

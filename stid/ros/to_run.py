@@ -31,6 +31,7 @@ G = 9.81
 SENSOR_CUT_S = 0.5
 MIN_SAMPLES = 20
 GAP_PERIODS = 2.5  # a step this many median periods long lost messages
+MAX_BAD_SHARE = 0.5  # of a topic's messages not a number: beyond it, not a driver's lapse but the wrong topic
 # The models draw straight lines between their input's samples: at a slow IMU's rate (30-60 Hz,
 # with a 50 Hz command) even the held command's period means (stid.held_command) spread each step
 # over a sample period. On exact single-track bags with a 50 ms servo lag that read tau_steer -1%
@@ -134,12 +135,19 @@ def _read(path, table, vehicle, where):
             wanted.setdefault(topic, FIELDS[bag.topics[topic].msgtype])
         cols = bag.read(wanted)
     for topic, fields in wanted.items():
+        bad = np.zeros(len(cols[topic]["t_log"]), bool)
         for f in fields:
-            bad = ~np.isfinite(cols[topic][f])
-            if bad.any():
-                raise InputError(f"{where}: {topic} has {int(bad.sum())} message(s) whose {f} is not a number (NaN or "
-                                 f"inf; the first is message {int(np.flatnonzero(bad)[0]) + 1} of {len(bad)}): a "
-                                 "driver that failed to read its sensor; cut those out of the bag")
+            bad |= ~np.isfinite(cols[topic][f])
+        if not bad.any():
+            continue
+        f = next(f for f in fields if not np.all(np.isfinite(cols[topic][f])))
+        words = (f"{topic} has {int(bad.sum())} message(s) whose {f} is not a number (NaN or inf; the first is "
+                 f"message {int(np.flatnonzero(bad)[0]) + 1} of {len(bad)}): a driver that failed to read its sensor")
+        if bad.mean() > MAX_BAD_SHARE:
+            raise InputError(f"{where}: {words}, in most of its messages: check the driver, or name another topic")
+        # (such a message carries no measurement: it is taken as lost, as one the link lost)
+        cols[topic] = {k: v[~bad] for k, v in cols[topic].items()}
+        choice.notes.append(f"{words}: dropped, as lost messages")
     return choice, cols, "".join(said)
 
 

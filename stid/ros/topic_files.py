@@ -102,9 +102,10 @@ class TopicFiles:
                 col = frame["field.header.stamp"]
                 # nanoseconds since the epoch: as float64 they would keep only 256 ns
                 ns = (col.to_numpy(np.int64) if col.dtype.kind in "iu"
-                      else _numbers(col, "field.header.stamp", where).astype(np.int64))
+                      else _numbers(col, "field.header.stamp", where, stamp=True).astype(np.int64))
             elif stamp is not None:
-                ns = np.round(_numbers(csv_map.apply(frame, {STAMP_KEY: stamp}, where)[STAMP_KEY], STAMP_KEY, where)
+                ns = np.round(_numbers(csv_map.apply(frame, {STAMP_KEY: stamp}, where)[STAMP_KEY], STAMP_KEY, where,
+                                       stamp=True)
                               * 1e9).astype(np.int64)
             else:
                 raise InputError(f"{where}: no time column: map the stamp in [ros.fields], e.g. stamp = "
@@ -123,12 +124,14 @@ def _read(file: Path):
     return csv_map.read(file)[0]
 
 
-def _numbers(series, what, where) -> np.ndarray:
+def _numbers(series, what, where, stamp: bool = False) -> np.ndarray:
+    """A column as numbers; a field's that are missing stay NaN (a message without a measurement:
+    the importer drops it as lost, stid.ros.to_run._read), a time's refuse the file."""
     import pandas as pd
 
     x = pd.to_numeric(series, errors="coerce").to_numpy(float)
     bad = ~np.isfinite(x)
-    if bad.any():
+    if bad.any() and stamp:
         raise InputError(f"{where}: '{what}' has {int(bad.sum())} missing or non-numeric value(s) (first at data row "
                          f"{int(np.flatnonzero(bad)[0]) + 1}); fill or drop those rows")
     return x
