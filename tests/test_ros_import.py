@@ -575,17 +575,9 @@ def test_one_csv_per_topic_reads_as_a_bag(drive, contract, tmp_path):
 REAL = Path(__file__).resolve().parent / "fixtures" / "real" / "frictionmaps"
 
 
-@pytest.mark.skipif(not (REAL / "original_ds1").is_dir(), reason="the real log arrives with tests/fixtures/real "
-                                                                  "(issue 21's real-log branch)")
-def test_public_real_log_in_its_original_format(tmp_path):
-    """FrictionMaps DS1 (a real F1/10 car, MIT licence): its logger's own per-topic CSVs of the
-    VESC IMU (g, deg/s, turned 90 deg: the dataset's README and the VESC driver's source),
-    the VESC odometry and the Ackermann command, read through [ros] as they are. They give
-    the run the hand-written converter gave (tools/real_logs/convert_frictionmaps.py), up to
-    the gyro zero this path takes off from the stand-still."""
+def _real_topics_vehicle(tmp_path):
+    """The real log's car with the [ros] table that reads its logger's per-topic CSVs."""
     import tomllib
-
-    from stid.fit.fitting import fit
 
     car = tomllib.loads((REAL / "vehicle.toml").read_text())
     text = (f"mass = {car['mass']}\na = {car['a']}\nb = {car['b']}\n\n[ros]\nimu = \"imuData.csv\"\n"
@@ -597,7 +589,20 @@ def test_public_real_log_in_its_original_format(tmp_path):
                 ("twist.twist.linear.x", "vx"), ("twist.twist.linear.y", "vy"), ("twist.twist.angular.z", "wz"),
                 ("drive.steering_angle", "delta"))))
     (tmp_path / "car.toml").write_text(text)
-    vehicle = load_vehicle(tmp_path / "car.toml")
+    return load_vehicle(tmp_path / "car.toml")
+
+
+@pytest.mark.skipif(not (REAL / "original_ds1").is_dir(), reason="the real log arrives with tests/fixtures/real "
+                                                                  "(issue 21's real-log branch)")
+def test_public_real_log_in_its_original_format(tmp_path):
+    """FrictionMaps DS1 (a real F1/10 car, MIT licence): its logger's own per-topic CSVs of the
+    VESC IMU (g, deg/s, turned 90 deg: the dataset's README and the VESC driver's source),
+    the VESC odometry and the Ackermann command, read through [ros] as they are. They give
+    the run the hand-written converter gave (tools/real_logs/convert_frictionmaps.py), up to
+    the gyro zero this path takes off from the stand-still."""
+    from stid.fit.fitting import fit
+
+    vehicle = _real_topics_vehicle(tmp_path)
     (run,) = load_file(REAL / "original_ds1", vehicle)
     (converted,) = load_file(REAL / "ds1.csv", vehicle)
     notes = " ".join(run.meta["notes"])
@@ -624,7 +629,6 @@ def test_a_topic_csvs_empty_field_is_a_lost_message(tmp_path):
     """One CSV per topic, a row of the IMU's with an empty field (the logger missed that reading):
     refused ("fill or drop those rows") where a bag's NaN message is now taken as lost; so is it."""
     import shutil
-    import tomllib
 
     import pandas as pd
 
@@ -633,17 +637,7 @@ def test_a_topic_csvs_empty_field_is_a_lost_message(tmp_path):
     imu = pd.read_csv(src / "imuData.csv")
     imu.loc[700, "ay"] = np.nan
     imu.to_csv(src / "imuData.csv", index=False)
-    car = tomllib.loads((REAL / "vehicle.toml").read_text())
-    (tmp_path / "car.toml").write_text(
-        f"mass = {car['mass']}\na = {car['a']}\nb = {car['b']}\n\n[ros]\nimu = \"imuData.csv\"\n"
-        "odometry = \"odomData.csv\"\nsteering = \"commandData.csv\"\nimu_axes = [\"-y\", \"x\", \"z\"]\n"
-        "accel_unit = \"g\"\ngyro_unit = \"deg/s\"\n\n[ros.fields]\nstamp = \"s + ns * 1e-9\"\n"
-        + "".join(f"\"{f}\" = \"{c}\"\n" for f, c in (
-            ("linear_acceleration.x", "ax"), ("linear_acceleration.y", "ay"), ("linear_acceleration.z", "az"),
-            ("angular_velocity.x", "wx"), ("angular_velocity.y", "wy"), ("angular_velocity.z", "wz"),
-            ("twist.twist.linear.x", "vx"), ("twist.twist.linear.y", "vy"), ("twist.twist.angular.z", "wz"),
-            ("drive.steering_angle", "delta"))))
-    (run,) = load_file(src, load_vehicle(tmp_path / "car.toml"))
+    (run,) = load_file(src, _real_topics_vehicle(tmp_path))
     notes = " ".join(run.meta["notes"])
     assert "imuData.csv has 1 message(s) whose linear_acceleration.y is not a number" in notes, notes
     assert "dropped, as lost messages" in notes, notes
