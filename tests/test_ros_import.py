@@ -709,29 +709,28 @@ def test_a_steering_angle_in_degrees_is_refused_not_fitted(drive, tmp_path):
     assert "[ros.fields] maps the columns of one CSV per topic" in unused and "offset and gain" in unused, unused
 
 
-def test_an_odometry_speed_whose_sign_is_the_other_way_is_named_and_read(drive, tmp_path):
-    """A VESC speed_to_erpm_gain of the wrong sign: the car 'reverses' all the time. The kinematic
-    check blamed the IMU's axes, whose fix led to the steering's sign and then to 'no stretch of
-    driving' (a trial user's loop). The speed is named, and [ros] speed_scale = -1 reads it."""
-    flipped = dataclasses.replace(drive, odom_vx=-drive.odom_vx)
-    bag = rd.write_bag(flipped, tmp_path / "run", rd.Layout())
-    with pytest.raises(InputError, match=r"forward speed is negative .*twist.linear.x.*speed_scale = -1"):
-        load_file(bag, _vehicle(tmp_path))
-    (ref,) = load_file(rd.write_bag(drive, tmp_path / "ok", rd.Layout()), _vehicle(tmp_path))
-    (run,) = load_file(bag, _vehicle(tmp_path, "[ros]\nspeed_scale = -1\n"))
-    assert np.allclose(run.vx, ref.vx)
+# (what a recorded bag has the other way, the refusal's words, the [ros] line that reads it, the signal)
+SIGNS = {
+    # a VESC speed_to_erpm_gain of the wrong sign: the car 'reverses' all the time. The kinematic check
+    # blamed the IMU's axes, whose fix led to the steering's sign and then to 'no stretch of driving'
+    # (a trial user's loop)
+    "odometry speed": ("odom_vx", r"forward speed is negative .*twist.linear.x.*speed_scale = -1", "speed_scale", "vx"),
+    # an AckermannDrive angle published positive right
+    "steering angle": ("cmd", r"positive right set \[ros\] steering_scale = -1", "steering_scale", "steer"),
+}
 
 
-def test_a_steering_angle_published_positive_right_is_read_with_its_sign(drive, tmp_path):
-    """The refusal of a command whose sign is the other way names [ros] steering_scale = -1 for an
-    AckermannDrive angle, which reads it."""
-    flipped = dataclasses.replace(drive, cmd=-drive.cmd)
+@pytest.mark.parametrize("what", list(SIGNS))
+def test_a_sign_the_other_way_is_named_and_read(what, drive, tmp_path):
+    """A recorded bag with a signal of the other sign: the refusal names the [ros] line that reads it."""
+    field, words, key, signal = SIGNS[what]
+    flipped = dataclasses.replace(drive, **{field: -getattr(drive, field)})
     bag = rd.write_bag(flipped, tmp_path / "run", rd.Layout())
-    with pytest.raises(InputError, match=r"positive right set \[ros\] steering_scale = -1"):
+    with pytest.raises(InputError, match=words):
         load_file(bag, _vehicle(tmp_path))
     (ref,) = load_file(rd.write_bag(drive, tmp_path / "ok", rd.Layout()), _vehicle(tmp_path))
-    (run,) = load_file(bag, _vehicle(tmp_path, "[ros]\nsteering_scale = -1\n"))
-    assert np.allclose(run.steer, ref.steer)
+    (run,) = load_file(bag, _vehicle(tmp_path, f"[ros]\n{key} = -1\n"))
+    assert np.allclose(getattr(run, signal), getattr(ref, signal))
 
 
 def test_a_ros1_bag_its_recorder_did_not_close_names_what_rebuilds_it(drive, tmp_path):

@@ -164,49 +164,32 @@ class LinSys:
     def filter_output(self, name: str, f_hz: float, order: int = 1) -> "LinSys":
         """Pass output ``name`` through a first-order low-pass at f_hz (a sensor's bandwidth):
         a state x' = w (y - x) that replaces the output; ``order`` 2: a second-order Butterworth,
-        x'' = w^2 (y - x) - sqrt(2) w x'. (add_states, written out: every simulation builds the
-        model with its two sensor filters a few times.)"""
-        if order == 2:
-            return self._filter_output_2(name, f_hz)
+        x'' = w^2 (y - x) - sqrt(2) w x'. (add_states, written out, with scalars: every simulation
+        builds the model with its two sensor filters a few times.)"""
         w = 2 * np.pi * f_hz
         i = self.out(name)
         n = len(self.states)
-        A2 = np.zeros((n + 1, n + 1))
+        k = 2 if order == 2 else 1
+        A2 = np.zeros((n + k, n + k))
         A2[:n, :n] = self.A
-        A2[n, :n] = w * self.C[i]
-        A2[n, n] = -w
-        B2 = np.zeros((n + 1, len(self.inputs)))
+        B2 = np.zeros((n + k, len(self.inputs)))
         B2[:n] = self.B
-        B2[n] = w * self.D[i]
-        C2 = np.zeros((len(self.outputs), n + 1))
+        last, gain = n + k - 1, (w * w if k == 2 else w)  # the state the output's input drives
+        A2[last, :n] = gain * self.C[i]
+        B2[last] = gain * self.D[i]
+        if k == 2:  # the filtered output and its rate
+            A2[n, n + 1] = 1.0
+            A2[last, n] = -w * w
+            A2[last, last] = -np.sqrt(2.0) * w
+        else:
+            A2[n, n] = -w
+        C2 = np.zeros((len(self.outputs), n + k))
         C2[:, :n] = self.C
         C2[i, :] = 0.0
         C2[i, n] = 1.0
         D2 = self.D.copy()
         D2[i, :] = 0.0
-        return LinSys(A2, B2, C2, D2, self.states + [f"filt_{name}"], list(self.inputs), list(self.outputs),
-                      dict(self.offsets))
-
-    def _filter_output_2(self, name: str, f_hz: float) -> "LinSys":
-        w = 2 * np.pi * f_hz
-        i = self.out(name)
-        n = len(self.states)
-        A2 = np.zeros((n + 2, n + 2))
-        A2[:n, :n] = self.A
-        A2[n, n + 1] = 1.0  # the filtered output's rate
-        A2[n + 1, :n] = w * w * self.C[i]
-        A2[n + 1, n] = -w * w
-        A2[n + 1, n + 1] = -np.sqrt(2.0) * w
-        B2 = np.zeros((n + 2, len(self.inputs)))
-        B2[:n] = self.B
-        B2[n + 1] = w * w * self.D[i]
-        C2 = np.zeros((len(self.outputs), n + 2))
-        C2[:, :n] = self.C
-        C2[i, :] = 0.0
-        C2[i, n] = 1.0
-        D2 = self.D.copy()
-        D2[i, :] = 0.0
-        return LinSys(A2, B2, C2, D2, self.states + [f"filt_{name}", f"filt_{name}_rate"], list(self.inputs),
+        return LinSys(A2, B2, C2, D2, self.states + [f"filt_{name}", f"filt_{name}_rate"][:k], list(self.inputs),
                       list(self.outputs), dict(self.offsets))
 
     def select(self, outputs) -> "LinSys":
