@@ -108,7 +108,8 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             lambda s, known, colour: least_squares(lambda p: residual(p, s), space, [space.to_p(known[0])],
                                                    unit_noise=True, known=known, colour=colour),
             lambda r: _colour(r, keeps, stretches[0].dt),
-            lambda x, colour: _concentrated(lambda p: residual(p, np.ones(2)).reshape(-1, 2), space, x, colour))
+            lambda x, r, colour: _concentrated(lambda p: residual(p, np.ones(2)).reshape(-1, 2), space, x, r,
+                                               colour))
     p_hat = space.to_p(res.x)
     if whiten:
         # prediction-error refinement: an AR model of each output's residual colour, then
@@ -250,9 +251,9 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of, conc
     move far from the first ones.
 
     ``res``: a solve weighted by ``sigma``; ``colour_of(r)``: the integrated autocorrelation
-    time of unweighted residuals r (n, 2); ``concentrated(x, colour)``: the likelihood's optimum
-    with the levels set by the parameters, from x (_concentrated: ``(x, r, evaluations)``), where
-    the rounds creep (ACCELERATE_FROM). Returns the last solve, its residuals and Jacobian
+    time of unweighted residuals r (n, 2); ``concentrated(x, r, colour)``: the likelihood's optimum
+    with the levels set by the parameters, from x with unweighted residuals r (_concentrated:
+    ``(x, r, evaluations)``), where the rounds creep (ACCELERATE_FROM). Returns the last solve, its residuals and Jacobian
     re-weighted by its own levels (what the verdict and the intervals are taken from; its
     evaluations counted over every round), those levels, and the residuals' colour there."""
     lo, hi = space.bounds_x()
@@ -272,7 +273,7 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of, conc
         sigma = own
         if rounds >= ACCELERATE_FROM and not jumped and concentrated is not None:  # the rounds creep
             jumped = True
-            x, r, spent = concentrated(res.x, colour)
+            x, r, spent = concentrated(res.x, r, colour)
             nfev += spent
             sigma = _levels(r)
             res = solve(sigma, (x, (r / sigma).ravel(), None), colour)
@@ -290,24 +291,23 @@ def _at_maximum_likelihood(res, sigma, space: ParamSpace, solve, colour_of, conc
     return res, own, colour
 
 
-def _concentrated(unweighted, space: ParamSpace, x0, colour: float):
+def _concentrated(unweighted, space: ParamSpace, x0, r0, colour: float):
     """The optimum of the likelihood of Gaussian errors of unknown size per output with those sizes
     set by the parameters themselves (each its output's residual level: the product of the two
     outputs' sums of squares is minimised), from ``x0``, in one bounded least-squares solve: the
     residuals of each output times the other's root sum of squares. Where re-weighted solves creep
     along a nearly flat likelihood (the parameters trading one output's fit for the other's), this
-    follows the likelihood itself. ``unweighted(p)``: the residuals (n, 2). Returns the optimum x,
-    its residuals (n, 2) and the evaluations spent."""
-    r0 = unweighted(space.to_p(x0))
+    follows the likelihood itself. ``unweighted(p)``: the residuals (n, 2); ``r0``: theirs at x0.
+    Returns the optimum x, its residuals (n, 2) and the evaluations spent."""
     ss0 = np.maximum(np.sum(r0 * r0, axis=0), 1e-300)
     scale = np.sqrt(2.0 * ss0[0] * ss0[1] / len(r0))  # (fixed: unit-noise-sized residuals at the start)
 
-    def residual(p):
-        r = unweighted(p)
+    def of(r):
         ss = np.sum(r * r, axis=0)
         return np.concatenate([np.sqrt(ss[1]) * r[:, 0], np.sqrt(ss[0]) * r[:, 1]]) / scale
 
-    res = least_squares(residual, space, [space.to_p(x0)], unit_noise=True, colour=colour)
+    res = least_squares(lambda p: of(unweighted(p)), space, [space.to_p(x0)], unit_noise=True, colour=colour,
+                        known=(np.asarray(x0, float), of(r0), None))
     return res.x, unweighted(space.to_p(res.x)), res.nfev + 1
 
 
