@@ -274,7 +274,7 @@ def _same_map(raw: np.ndarray, mapped: np.ndarray, x: np.ndarray) -> np.ndarray:
     that took ``raw`` to ``mapped``."""
     i, j = int(np.argmin(raw)), int(np.argmax(raw))
     if raw[j] == raw[i]:
-        return np.full(len(x), float(mapped[i]) if len(mapped) else 0.0) + 0.0 * x
+        return np.full(len(x), float(mapped[i]) if len(mapped) else 0.0)
     gain = (mapped[j] - mapped[i]) / (raw[j] - raw[i])
     return mapped[i] + gain * (x - raw[i])
 
