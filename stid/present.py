@@ -121,6 +121,13 @@ def diagnosis_text(rounds, runs=None, vehicle_path=None, peel: bool = False) -> 
         elif known and all(d.base.fit[o] >= d.floor[o] - 0.5 for o in known):
             lines.append("  => nothing is missing that this data can show: the model is at the noise floor"
                          + ("" if len(known) == 2 else f" of {known[0]} (the other has none)"))
+            loose = [o for o in known if d.base.fit[o] - d.floor[o] > 0.5]
+            if loose:  # above it, within the floor's own uncertainty: a floor this loose says little
+                lines.extend(_wrap("(it fits " + ", ".join(
+                    f"{o} {d.base.fit[o] - d.floor[o]:.1f} points above it, within the floor's +-"
+                    f"{2.576 * d.floor_se.get(o, float('nan')):.1f}" for o in loose)
+                    + " (99%): on this data the floor is poorly known, and a small gap could hide in it)",
+                    indent="    ", first="    "))
         elif not known:
             see_below = True
             lines.extend(_wrap("=> nothing named, and with no noise floor on this data nothing says how far "

@@ -226,3 +226,23 @@ def test_a_cg_the_vehicle_file_misplaces_is_said_to_read_as_an_accelerometer_off
     named = [c for c in found.candidates if c.significant]
     assert [c.effect for c in named] == ["accel_offset"], [(c.effect, c.why_not) for c in found.candidates]
     assert "if it is mounted at the CG, a and b are wrong" in named[0].explanation, named[0].explanation
+
+
+def test_at_a_loose_noise_floor_the_words_say_how_loose(tmp_path):
+    """A model that fits 3.1 points above a noise floor known to +-3.6 (a trial user's run, cut by a
+    2 s gap while driving) was called 'at the noise floor' and no more. Within the floor's own
+    uncertainty that is right, but a floor so loose says little: the words now say so."""
+    from types import SimpleNamespace
+
+    from stid.present import diagnosis_text
+
+    pred = SimpleNamespace(vx=3.0, vx_series=None)
+    base = SimpleNamespace(fit={"ay": 97.2, "r": 99.2}, converged=True, predictions=[pred], delay_words=lambda: "")
+    d = SimpleNamespace(model="bicycle+actuator_lag", base=base, floor={"ay": 94.1, "r": 99.1},
+                        floor_se={"ay": 3.59, "r": 0.05}, candidates=[], best=None, named_model="bicycle+actuator_lag",
+                        unexplained=None, stretches=None)
+    text = diagnosis_text([d])
+    assert "the model is at the noise floor" in text, text
+    assert "ay 3.1 points above it, within the floor's +-9.2 (99%)" in text and "poorly known" in text, text
+    d.base.fit["ay"] = 94.3  # (at it: nothing more to say)
+    assert "poorly known" not in diagnosis_text([d])
