@@ -5,6 +5,7 @@ per run, residual whiteness, and a verdict. Every model is fitted by the one pat
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,8 +102,6 @@ def _effective_bic(entries) -> None:
     diagnosis's likelihood ratio counts them). Counted as independent, the samples of coloured
     residuals made any gain a win: a delay of 0.12 ms (z = 2), gaining no fit point, was 'the best
     of these by BIC' on a trial user's car that had none."""
-    import math
-
     tau = max((max(e["_resid"].tau_int.values()) for e in entries), default=1.0)
     n_eff = max(entries[0]["_resid"].n / max(tau, 1.0), 1.0) if entries else 1.0
     for e in entries:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stid import sensor_chain
 from stid.errors import InputError
 from stid.models.bicycle import BASE_PARAMS, bicycle
 from stid.models.effect import Context, get_effect
@@ -98,8 +99,6 @@ class Model:
         # The sensors' output filters are part of the measurement, not effects to discover.
         # They come with the data (stid.sensor_chain; a stretch passes its own chain to
         # simulate/build); this default is the vehicle file's [sensors], else none.
-        from stid import sensor_chain
-
         chain = sensor_chain.from_vehicle(vehicle)
         self.sensor_bandwidth = {k: v for k, v in chain.items() if k != "source"}
         if not self._law_known:
@@ -190,7 +189,7 @@ class Model:
         for out in MEASURED:
             f = float(chain.get(out, 0.0) or 0.0)
             if 0 < f < float("inf"):
-                sys = sys.filter_output(out, f, int(chain.get(f"{out}_order", 1)))
+                sys = sys.filter_output(out, f, sensor_chain.order(chain, out))
         return sys
 
     def freqresp(self, p: dict, f_hz: np.ndarray, vx: float, sensors: dict | None = None) -> np.ndarray:
