@@ -213,6 +213,46 @@ def test_an_effect_mimicked_by_another_is_not_named_and_goes_to_unexplained(simd
     assert "residual follows steer rate" in text  # a lag: the residual is the steer's derivative
 
 
+def test_when_the_first_fails_its_evidence_one_the_fit_cannot_tell_from_it_is_checked_and_named(monkeypatch):
+    """The rule of _name_one on candidates written here: the first by likelihood ratio is bent and
+    no pair holds. A second it cannot be told from by the fit (likelihood ratios within chance of
+    each other) is then checked on its own evidence, and named where that holds; before, it was
+    left "the same symptom as the first, which is not named either (its own evidence not checked)"
+    and the diagnosis blamed the catalogue. A third that fits worse by more than chance is never
+    checked (the mimicked-effect test above: body_roll would have been named for a servo lag)."""
+    from types import SimpleNamespace
+
+    from stid import diagnose as diagnosis
+    from stid.analysis.evidence import Evidence
+    from stid.search.candidate import Candidate
+
+    level = 0.05 / 11
+    first, second, third = (Candidate(e, result=SimpleNamespace(), lr=lr, level=level, passes=True)
+                            for e, lr in (("sensor_delay", 500.0), ("actuator_lag", 496.0), ("body_roll", 300.0)))
+    checked = []
+
+    def evidence(name, effect, *a, **k):
+        checked.append(effect)
+        return Evidence(effect != "sensor_delay", "" if effect != "sensor_delay" else "bent across speed")
+
+    monkeypatch.setattr(diagnosis, "check_evidence", evidence)
+    monkeypatch.setattr(diagnosis, "search_pairs", lambda *a, **k: SimpleNamespace(holds_with=None))
+    diagnosis._name_one([first, second, third], [], "bicycle", None, [], None)
+    assert checked == ["sensor_delay", "actuator_lag"]  # never body_roll: the first fits it better
+    assert second.significant and not first.significant and not third.significant
+    assert "actuator_lag fits as well, holds one value and is named instead" in first.why_not, first.why_not
+    assert third.same_symptom_as == "actuator_lag", third.why_not
+
+    # the same, where the second's own evidence fails too: nothing is named, and each says why
+    first, second, third = (Candidate(c.effect, result=c.result, lr=c.lr, level=level, passes=True)
+                            for c in (first, second, third))
+    monkeypatch.setattr(diagnosis, "check_evidence", lambda name, effect, *a, **k: Evidence(False, f"{effect} bent"))
+    diagnosis._name_one([first, second, third], [], "bicycle", None, [], None)
+    assert not any(c.significant for c in (first, second, third))
+    assert first.why_not == "not named: sensor_delay bent" and second.why_not == "not named: actuator_lag bent"
+    assert third.why_not.endswith("which is not named either (its own evidence not checked)"), third.why_not
+
+
 def test_a_parameter_is_one_value_across_speeds_only_within_its_intervals_and_a_material_margin():
     """The evidence rule on numbers written here: a lag of 60 ms at both speeds holds; a
     relaxation length that grows 50% from 4 to 6 m/s (a constant lag in disguise) does not;
