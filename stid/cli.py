@@ -72,6 +72,8 @@ def _cmd_fit(args) -> int:
         from stid.analysis.noise_floor import below_floor
 
         doc["below_floor"] = below_floor(judged, floor, floor_se)
+        if doc["below_floor"]:  # (a script that reads the warnings hears it too)
+            doc.setdefault("warnings", []).append(_below_floor_words(doc["below_floor"], res.converged, args))
         print(_json(doc))
     else:
         print(res.table())
@@ -162,19 +164,23 @@ def _floor_line(res, floor, se, args) -> str:
     if above:
         text += ("\n  this model is above it (" + ", ".join(f"{o} {g:.1f} points" for o, g in above.items())
                  + f"): {ABOVE_WORDS}")
-    if short and not res.converged:
-        text += ("\n  this fit is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
-                 + ") because the solver did not converge, not because the model must lack something")
-    elif short:
-        import shlex
-
-        cmd = " ".join(shlex.quote(a) for a in ["stid", "diagnose", *args.runs, "--vehicle", args.vehicle,
-                                                  "--model", args.model])
-        text += ("\n  this model is far below it (" + ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
-                 + "): something is missing, and its intervals hold only if the model were right (a model "
-                 "that misses an effect bends its parameters to make up for it, by more than the intervals "
-                 "show). See what: " + cmd)
+    if short:
+        text += "\n  " + _below_floor_words(short, res.converged, args)
     return text
+
+
+def _below_floor_words(short: dict, converged: bool, args) -> str:
+    """What a fit far below the noise floor (``short``: fit points per output) means."""
+    gap = ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
+    if not converged:
+        return f"this fit is far below the noise floor ({gap}) because the solver did not converge, not because " \
+               "the model must lack something"
+    import shlex
+
+    cmd = shlex.join(["stid", "diagnose", *args.runs, "--vehicle", args.vehicle, "--model", args.model])
+    return (f"this model is far below the noise floor ({gap}): something is missing, and its intervals hold only "
+            "if the model were right (a model that misses an effect bends its parameters to make up for it, by "
+            "more than the intervals show). See what: " + cmd)
 
 
 def _vehicle_and_runs(args, chain_warning: bool = False):
@@ -276,11 +282,15 @@ def _cmd_plan(args) -> int:
     vehicle = load_vehicle(args.vehicle)
     model = Model(args.model, vehicle)
     params = model.defaults()  # (the vehicle file's [params] init where it gives one)
+    warnings = []
     if args.params_from:
         from stid.fit.fitting import fit
+        from stid.plan import missing_effect_warning
 
-        fitted = fit(load_runs(args.params_from, vehicle), vehicle, args.model, "time")
+        params_runs = load_runs(args.params_from, vehicle)
+        fitted = fit(params_runs, vehicle, args.model, "time")
         params.update(fitted.all_params())
+        warnings += missing_effect_warning(fitted, params_runs, args.params_from, args.vehicle)
         params_source = f"a fit to {', '.join(args.params_from)}" + (
             "" if fitted.converged else " that did not converge (its values are where the solver stopped)")
     else:
@@ -293,11 +303,12 @@ def _cmd_plan(args) -> int:
         # stand-still's sensor noise, which assumes the model exact and predicts too little
         from stid.plan import noise_from_runs
 
-        noise, source, fitted = noise_from_runs(load_runs([args.noise_from], vehicle), vehicle, args.model,
-                                                args.noise_from)
+        noise, source, fitted, said = noise_from_runs(load_runs([args.noise_from], vehicle), vehicle, args.model,
+                                                      args.noise_from, args.vehicle)
         if fitted and not args.params_from:
             params.update(fitted)
             params_source = f"the fit to {args.noise_from}"
+        warnings += [w for w in said if w not in warnings]
     else:
         noise = datasheet_noise(vehicle=vehicle)
         source = "datasheets (ADXL335, LISY300AL, 12-bit ADC)"
@@ -313,7 +324,7 @@ def _cmd_plan(args) -> int:
                              "above 0 and below 100, e.g. Iz=5%")
     for m in manoeuvres:
         check_grip(model, params, m)
-    text, doc = plan_report(model, params, manoeuvres, noise, targets, source, params_source)
+    text, doc = plan_report(model, params, manoeuvres, noise, targets, source, params_source, warnings)
     print(_json(doc) if args.json else text)
     return 0
 

@@ -181,14 +181,16 @@ def noise_from_fit(result) -> dict:
     return residual_model(result.predictions)
 
 
-def noise_from_runs(runs, vehicle, model_name: str = "bicycle", label: str = "the run") -> tuple:
-    """Noise for the plan from runs that drove: ``(noise, source, params)``.
+def noise_from_runs(runs, vehicle, model_name: str = "bicycle", label: str = "the run",
+                    vehicle_path: str = "V.toml") -> tuple:
+    """Noise for the plan from runs that drove: ``(noise, source, params, warnings)``.
 
     The runs are fitted with ``model_name`` as ``stid fit`` would, and the residual
     spectrum (model error + sensor noise) is the noise: the spread a fit shows on data
     from this car is set by what the model misses as much as by the sensors. Runs that
     never drive fall back to their stand-still (sensor noise alone), which says so.
-    ``params`` are the fitted values (None on the fallback)."""
+    ``params`` are the fitted values (None on the fallback); ``warnings``: where the fit
+    is far below the runs' noise floor (missing_effect_warning; ``vehicle_path`` for its command)."""
     from stid.fit.fitting import fit
 
     still = noise_psd_from_still(runs)
@@ -200,7 +202,7 @@ def noise_from_runs(runs, vehicle, model_name: str = "bicycle", label: str = "th
         if still is None:
             raise InputError(f"{label} neither stands still nor drives with steering: no noise level in it")
         return still, f"the stand-still of {label} (sensor noise only: the model is assumed exact, which " \
-                      "predicts too little spread; give a run with steering to include model error)", None
+                      "predicts too little spread; give a run with steering to include model error)", None, []
     noise = noise_from_fit(res)
     source = f"the residuals of a {model_name} fit to {label} (model error + sensor noise" + (
         "" if res.converged else "; that fit did not converge, so they also hold the solver's failure")
@@ -213,7 +215,38 @@ def noise_from_runs(runs, vehicle, model_name: str = "bicycle", label: str = "th
         ratio = {o: math.sqrt(band(noise[o]) / band(still[o])) for o in ("ay", "r")}
         source += "; the rest is {} the stand-still's sensor noise in 0.5-8 Hz".format(
             ", ".join(f"{o} {x:.1f}x" for o, x in ratio.items()))
-    return noise, source + ")", res.all_params()
+    return noise, source + ")", res.all_params(), missing_effect_warning(res, runs, [label], vehicle_path)
+
+
+def missing_effect_warning(res, runs, paths: list, vehicle_path: str) -> list[str]:
+    """A warning where the fit ``res`` to ``runs`` (from the files ``paths``) is far below their noise
+    floor (stid.analysis.noise_floor.below_floor), empty otherwise. The plan assumes the model is the car: a model that
+    misses an effect bends its fitted values to make up for it (a trial's car with a 40 ms servo
+    lag, fitted and planned as a bicycle: Iz +90%, planned to 2.1%), and nothing else in a plan
+    says so."""
+    from stid.analysis.noise_floor import below_floor, noise_floor_uncertainty
+    from stid.fit import dataset
+
+    if not res.predictions:
+        return []
+    try:
+        floor, se = noise_floor_uncertainty(dataset.dynamic_stretches(runs))
+    except InputError:
+        return []
+    short = below_floor(res, floor, se)
+    if not short:
+        return []
+    import shlex
+
+    gap = ", ".join(f"{o} {g:.1f} points" for o, g in short.items())
+    label = ", ".join(map(str, paths))
+    if not res.converged:
+        return [f"the {res.model} fit to {label} did not converge, and is far below the noise floor there ({gap}): "
+                "the values assumed are where its solver stopped"]
+    return [f"{res.model} fits {label} far below its noise floor ({gap}): it misses an effect, which bends the "
+            "values assumed here (and the spread planned around them) by more than they show. Find it with "
+            f"'{shlex.join(['stid', 'diagnose', *map(str, paths), '--vehicle', str(vehicle_path), '--model', res.model])}' "
+            "and plan with that model"]
 
 
 def suggestions(model, params, manoeuvres, noise, targets: dict) -> list[str]:
@@ -293,10 +326,13 @@ def _long_enough(model, params, manoeuvres, noise, name, extra, rel, target, gai
 
 
 def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
-                params_source: str = "the model's defaults and the vehicle file's [params]") -> tuple[str, dict]:
+                params_source: str = "the model's defaults and the vehicle file's [params]",
+                warnings=()) -> tuple[str, dict]:
+    """The plan as text and as JSON. ``warnings``: said before the numbers (missing_effect_warning)."""
     pred = predict(model, params, manoeuvres, noise)
     lines = [f"plan for {model.name} (cornering stiffness per axle, N/rad; noise from {noise_source})",
              f"  parameter values assumed (not estimates): {params_source}"]
+    lines += [f"  warning: {w}" for w in warnings]
     for m in manoeuvres:
         lines.append(f"  drive: {m.label()}")
     lines.append(f"  {'parameter':<14}{'value':>12}{'predicted sd':>15} {'':>11}  unit")
@@ -334,5 +370,5 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
            "params": {n: {"value": float(params[n]),
                           "predicted_sd": float(pred["sd"][n]) if np.isfinite(pred["sd"][n]) else None,
                           "unit": model.param(n).unit} for n in pred["names"]},
-           "suggestions": sugg}
+           "suggestions": sugg, "warnings": list(warnings)}
     return "\n".join(lines), doc

@@ -44,7 +44,10 @@ def test_fit_far_below_the_floor_says_so_and_points_to_diagnose(simdir):
     paths = random_steer_pair(simdir, ("actuator_lag",))
     r = _stid("fit", *paths, "--vehicle", RC8, "--model", "bicycle")
     assert r.returncode == 0, r.stderr
-    assert "far below it" in r.stdout and "stid diagnose" in r.stdout
+    assert "far below the noise floor" in r.stdout and "stid diagnose" in r.stdout
+    js = json.loads(_stid("fit", *paths, "--vehicle", RC8, "--model", "bicycle", "--json").stdout)
+    # a script that reads the warnings hears it too (a trial's had only below_floor to go by)
+    assert js["below_floor"] and any("far below the noise floor" in w for w in js["warnings"]), js["warnings"]
     ok = _stid("fit", paths[1], "--vehicle", RC8, "--model", "bicycle+actuator_lag", "--validate", paths[0])
     assert ok.returncode == 0 and "far below" not in ok.stdout and "judged on" in ok.stdout
     # judging on a run the fit saw is not validation: refused, in one line

@@ -132,7 +132,7 @@ def test_plan_from_residuals_predicts_the_spread_a_hidden_lag_causes():
     runs = [synthetic_run(s, m, truth_model="bicycle+actuator_lag", truth=truth) for s in range(16)]
     est = np.array([[fit([r], VEHICLE, "bicycle", "time", intervals="noise").value(k) for k in TRUE] for r in runs])
     observed = dict(zip(TRUE, est.std(axis=0, ddof=1)))
-    noise, source, params = noise_from_runs(runs[:1], VEHICLE, "bicycle", "run 0")
+    noise, source, params, warnings = noise_from_runs(runs[:1], VEHICLE, "bicycle", "run 0")
     assert "residuals" in source and "model error" in source
     model = Model("bicycle", VEHICLE)
     from_residuals = predict(model, params, [m], noise)["sd"]
@@ -180,3 +180,57 @@ def test_a_plan_suggests_only_driving_the_car_can_do_and_at_most_a_days_worth():
     check_grip(model, params, Manoeuvre(speed, math.radians(amp), bw, dur))  # does not raise
     (line,) = suggestions(model, params, base, noise, {"Iz": 1e-6})
     assert f"for {MAX_PLAN_S:g} s" in line and "the target is beyond what 4 h" in line, line
+
+
+def _lagged_car_csv(path, tau, fs=200.0, v=4.0, seed=3):
+    """A run written here from plain physics (test_one_path.bicycle_run, exact per sample) with the
+    steer command driving the road wheels through a first-order servo lag ``tau`` (exact for a
+    held input), white sensor noise of 2% of each output; the CSV carries the command."""
+    import csv
+
+    from scipy.linalg import expm
+    from test_one_path import bicycle_run
+
+    run = bicycle_run(lambda t: np.full(len(t), v), T=40.0, fs=fs, seed=seed)
+    e = expm(np.array([[-1 / tau, 1 / tau], [0.0, 0.0]]) / fs)
+    wheel, d = np.empty_like(run["steer"]), run["steer"][0]
+    for i, u in enumerate(run["steer"]):
+        wheel[i] = d
+        d = e[0, 0] * d + e[0, 1] * u
+    out = bicycle_run(lambda t: np.full(len(t), v), T=40.0, fs=fs, seed=seed, steer=wheel)
+    rng = np.random.default_rng(seed)
+    ay, r = (out[k] + 0.02 * np.std(out[k]) * rng.standard_normal(len(wheel)) for k in ("ay", "r"))
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t", "steer", "ay", "r", "vx"])
+        w.writerows(zip(run["t"], run["steer"], ay, r, out["vx"]))
+    return path
+
+
+def test_a_plan_from_a_run_whose_model_misses_an_effect_says_so(tmp_path):
+    """A trial user's car with a 40 ms servo lag, planned as a bicycle from its own run
+    (--noise-from): Iz assumed +90% and planned to 2.1%, and nothing in the plan said that the
+    model was wrong there (stid fit says so: far below the noise floor). The plan now warns as the
+    fit does, in its text and its JSON; with the lag in the model it does not."""
+    import json
+
+    run = _lagged_car_csv(tmp_path / "lagged.csv", tau=0.040)
+    car = tmp_path / "car.toml"
+    car.write_text("mass = 9.31\na = 0.2326\nb = 0.2874\n[sensors]\naccel_bandwidth_hz = 0\ngyro_bandwidth_hz = 0\n")
+
+    def plan(model, *more):
+        r = subprocess.run([tool("stid"), "plan", "--vehicle", str(car), "--model", model, "--manoeuvre",
+                            "speed=4,amp=3deg,bw=3,dur=40", "--noise-from", str(run), *more],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    text = plan("bicycle")
+    assert "warning: bicycle fits" in text and "far below its noise floor" in text, text
+    assert "stid diagnose" in text and "plan with that model" in text, text
+    doc = json.loads(plan("bicycle", "--json"))
+    assert doc["warnings"] and "far below its noise floor" in doc["warnings"][0], doc["warnings"]
+    right = json.loads(plan("bicycle+actuator_lag", "--json"))
+    assert right["warnings"] == [], right["warnings"]
+    # (the data hold the road-wheel angle over each 5 ms sample, which adds up to a sample to the lag)
+    assert 0.040 <= right["params"]["tau_steer"]["value"] <= 0.040 + 1 / 200.0 + 0.002, right["params"]
