@@ -441,7 +441,7 @@ def _share_gyro_bias(runs) -> None:
             r.meta.setdefault("notes", []).append(
                 f"gyro zero taken from the stand-still of {donors[0].name} (same boot)")
         else:
-            r.warn("the run never stands still: gyro bias not re-estimated (start runs with ~2 s standing still)")
+            r.warn("the run never stands still: gyro bias not re-estimated (start runs with ~3 s standing still)")
 
 
 def _pieces(s):

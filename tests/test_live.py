@@ -375,7 +375,7 @@ def test_no_stand_still_asks_for_one_and_stand_still_only_asks_to_drive(tmp_path
                            timeout=300)
         assert r.returncode == 0, r.stderr
     up = Estimator(vehicle, "bicycle", {}, "t").update(Source(rolling, vehicle).poll(), "rolling")
-    assert any("stand still 2 s for the gyro zero" in s for s in up.lacking), up.lacking
+    assert any("stand still 3 s for the gyro zero" in s for s in up.lacking), up.lacking
     up = Estimator(vehicle, "bicycle", {}, "t").update(Source(still, vehicle).poll(), "still")
     assert not up.params
     assert any("only stood still" in s for s in up.state), up.state
