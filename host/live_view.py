@@ -14,6 +14,7 @@ view's input, and the view makes one last update on the finished file.
 
 from __future__ import annotations
 
+import argparse
 import errno
 import os
 import subprocess
@@ -60,3 +61,15 @@ class LiveView:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 return self.proc.wait()
+
+
+def web_port(text: str) -> int:
+    """``--web PORT`` (of ``stid live`` and ``stid-log --live``): a TCP port, 1-65535, or 0 for a free
+    one (a port beyond them ended in Python's OverflowError)."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a port: give 1-65535, or --web alone for a free one")
+    return port

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from host.errors import HostError
+from host.live_view import web_port
 from host.protocol import LINK_BAUD
 from host.version import installed_version
 
@@ -44,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     lv.add_argument("--model", default="bicycle", help="the model to identify live (default bicycle)")
     lv.add_argument("--target", action="append", metavar="NAME=PCT",
                     help="e.g. Iz=3%%: the precision to reach (default: the vehicle file's [targets], else 5%%)")
-    lv.add_argument("--web", type=int, nargs="?", const=0, metavar="PORT",
+    lv.add_argument("--web", type=web_port, nargs="?", const=0, metavar="PORT",
                     help="also serve the live view on http://127.0.0.1:PORT/ (no PORT: a free one, printed)")
     lv.add_argument("--every", type=float, default=2.0, help="seconds between live updates (default 2)")
     return ap

@@ -339,6 +339,10 @@ class Logger:
                 last_stats = now
                 for event, text in watch.check(now, rec.stats, rec.samples, rec.hello_seen, True):
                     self._warn(rec, event, text)
+                if self.live is not None and not self.live.alive:  # (it said why itself, above)
+                    code, self.live = self.live.proc.returncode, None
+                    self._warn(rec, "live_view", f"the live view ended (exit {code}); recording goes on, and "
+                               f"'stid live {self.path} --vehicle V.toml --follow' in another shell shows it again")
             if now - rate_t >= 1.0:
                 rate, rate_n, rate_t = rate_n / (now - rate_t), 0, now
             st = rec.stats

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from host.errors import HostError
+from host.live_view import web_port
 from stid.errors import StidError
 
 RUNS_HELP = ("RUN.mcap (stid-log), RUN.csv (import contract, or mapped by [csv]), a ROS 2 bag (directory or .mcap), "
@@ -509,7 +510,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the vehicle file's [targets], else 5%% for every parameter positive by nature)")
     p.add_argument("--follow", action="store_true", help="keep reading the file as it grows (else: one update)")
     p.add_argument("--every", type=float, default=2.0, help="seconds between updates (default 2)")
-    p.add_argument("--web", type=int, nargs="?", const=0, metavar="PORT",
+    p.add_argument("--web", type=web_port, nargs="?", const=0, metavar="PORT",
                    help="also serve the live view on http://127.0.0.1:PORT/ (no PORT: a free one, printed)")
     p.add_argument("--json", action="store_true", help="one JSON document per update on stdout (nothing else)")
     p.add_argument("--no-diagnose", action="store_true", help="do not run stid diagnose in the background")

@@ -458,7 +458,19 @@ def test_user_errors_end_in_one_line_and_a_non_zero_exit(tmp_path):
         ([tool("stid-log"), "/dev/null", "--live"], "--vehicle"),
         ([tool("stid-log"), "/dev/null", "--target", "Iz=3%"], "add --live"),
         ([tool("stid-log"), "/dev/null", "--live", "--vehicle", str(car), "--target", "Q=1"], "no parameter Q"),
+        # a port beyond 65535 ended in Python's OverflowError; one in use named no port
+        ([tool("stid"), "live", "x.mcap", "--vehicle", str(car), "--web", "99999"], "is not a port"),
+        ([tool("stid-log"), "/dev/null", "--live", "--vehicle", str(car), "--web", "-5"], "is not a port"),
     ]
+    import socket
+
+    held = socket.socket()
+    held.bind(("127.0.0.1", 0))
+    held.listen()
+    run = tmp_path / "run.csv"
+    bicycle_csv(run, 5.0)
+    cases.append(([tool("stid"), "live", str(run), "--vehicle", str(car), "--no-diagnose", "--web",
+                   str(held.getsockname()[1])], f"--web {held.getsockname()[1]}: cannot serve"))
     for cmd, words in cases:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
         assert r.returncode != 0 and "Traceback" not in r.stderr, (cmd, r.stderr)
@@ -772,3 +784,24 @@ def test_a_csv_being_appended_is_read_up_to_its_last_whole_row(car, tmp_path):
     assert up.params and not up.state, up.state
     rows = data[:cut].count(b"\n") - 1  # the header's line is not a row
     assert up.seconds == pytest.approx(rows / 500.0, abs=2 / 500.0)
+
+
+def test_a_single_update_says_done_only_after_its_diagnosis(simdir):
+    """`stid live RUN` (one update, no --follow) on a run with a servo lag the watched model lacks
+    said "done: every target is reached; the run is enough", with no diagnosis: the background
+    diagnosis ran only while following. A single update now runs it to its end first; with the lag
+    in the model, the same targets are done."""
+    from simdata import random_steer_pair
+
+    run = random_steer_pair(simdir, ("actuator_lag",))[0]
+    rc8 = str(Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml")
+
+    def once(model):
+        r = subprocess.run([tool("stid"), "live", str(run), "--vehicle", rc8, "--model", model, "--target", "Iz=20%"],
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        return r.stdout
+
+    wrong = once("bicycle")
+    assert "done:" not in wrong and "actuator_lag" in wrong and "diagnosis:" in wrong, wrong
+    assert "done:" in once("bicycle+actuator_lag")

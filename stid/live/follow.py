@@ -47,7 +47,7 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
         for s in (signal.SIGINT, signal.SIGTERM):
             old[s] = signal.signal(s, lambda *_: stop.set())
     server = None
-    diag = BackgroundDiagnosis(path, vehicle.path, model) if diagnose and follow else None
+    diag = BackgroundDiagnosis(path, vehicle.path, model) if diagnose else None
     name = Path(path).name
     try:
         if web_port is not None:
@@ -66,8 +66,8 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
             else:  # nothing new to fit: only what the view says about the data may have changed
                 up = replace(last, state=list(snap.state), wall=time.time())
                 up.done = done_line(up)
-            if diag is not None:
-                up.diagnosis = diag.poll(up.driving_s, snap.finished)
+            if diag is not None:  # (an update that is the view's only one waits for its diagnosis)
+                up.diagnosis = diag.poll(up.driving_s, snap.finished, wait=not follow or (last is None and snap.finished))
                 if diag.effect and up.params:
                     with_named_effect(up, model, diag.effect)
                 elif diag.unexplained and up.params:

@@ -77,7 +77,13 @@ class LiveServer:
                 if body:
                     self.wfile.write(body)
 
-        self.httpd = ThreadingHTTPServer((host, port), Handler)
+        try:
+            self.httpd = ThreadingHTTPServer((host, port), Handler)
+        except OSError as e:  # (the port in use: "Address already in use" named no port)
+            from stid.errors import InputError
+
+            raise InputError(f"--web {port}: cannot serve the live view on {host}:{port} ({e.strerror or e}): "
+                             "another program may hold it; give another port, or --web alone for a free one") from None
         self.httpd.daemon_threads = True
         self.port = self.httpd.server_address[1]
         self.url = f"http://{host}:{self.port}/"
