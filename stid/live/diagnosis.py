@@ -43,9 +43,8 @@ class BackgroundDiagnosis:
             return None
         if wait and self.proc is None and self.tried_at == 0 and driving_s >= MIN_DRIVING_S:
             self._start(driving_s, nice=False)  # (waited for: the user's foreground work now)
-        if wait and self.proc is not None:
-            self.proc.wait()
-        if self.proc is not None and self.proc.poll() is not None:
+        # (communicate, not wait: the JSON may be more than a pipe holds)
+        if self.proc is not None and (wait or self.proc.poll() is not None):
             out, _ = self.proc.communicate()
             self.text = verdict(out, self.running_at) or self.text
             if self.text:
