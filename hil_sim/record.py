@@ -15,6 +15,7 @@ import numpy as np
 from cobs import cobs
 
 from hil_sim.firmware_runner import run_firmware, start_firmware
+from hil_sim.vehicle import board_opts
 from hil_sim.run import SimConfig, SimRun, simulate_run, write_stimulus, write_truth
 from host import protocol as p
 from host import units
@@ -30,7 +31,8 @@ def firmware_bytes(run: SimRun) -> bytes:
         stim = Path(tmp) / "stimulus.bin"
         run.stimulus.write(stim)
         c = run.cfg
-        return run_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size)
+        return run_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size,
+                            board_opts=board_opts(c.car))
 
 
 FAULT_BLOCK = 1 << 16  # faults are drawn per block of this many clean bytes: the same seed, the same faults
@@ -59,7 +61,8 @@ def record(cfg: SimConfig, mcap_path, csv_path=None, truth_path=None, start_ns: 
         if truth_path:
             write_truth(run, truth_path)
         c = run.cfg
-        proc = start_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size)
+        proc = start_firmware(stim, rate_hz=c.rate_hz, batch=c.batch, ring_size=c.ring_size,
+                              board_opts=board_opts(c.car))
         err = bytearray()
         drain = threading.Thread(target=lambda: err.extend(proc.stderr.read()), daemon=True)
         drain.start()  # the board's stderr must not fill its pipe while we read stdout

@@ -26,6 +26,7 @@ import numpy as np
 from hil_sim.faults import LinkFaults
 from hil_sim.firmware_runner import start_firmware
 from hil_sim.run import SimConfig, simulate_run, write_truth
+from hil_sim.vehicle import board_opts
 
 
 @dataclass
@@ -111,7 +112,8 @@ def serve(cfg: SimConfig, opts: ServeOptions, out=None) -> int:
     tmp = tempfile.TemporaryDirectory(prefix="stid-sim-")
     stim = Path(tmp.name) / "stimulus.bin"
     run.stimulus.write(stim)
-    proc = start_firmware(stim, rate_hz=cfg.rate_hz, batch=cfg.batch, ring_size=cfg.ring_size, realtime=True)
+    proc = start_firmware(stim, rate_hz=cfg.rate_hz, batch=cfg.batch, ring_size=cfg.ring_size, realtime=True,
+                          board_opts=board_opts(cfg.car))
     clean = bytearray()
     dropped = 0
     t_start = time.monotonic()

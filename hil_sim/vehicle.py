@@ -106,6 +106,19 @@ class CarParams:
         return asdict(self)
 
 
+
+def board_opts(car: CarParams) -> dict:
+    """The simulated board of ``car`` (hil_sim.firmware_runner's board_opts): a car of its own
+    (``--car``) carries a board of its own, its machine.unique_id() from the car's values, so that
+    a logger told "the same board only" refuses another car that comes up on its port (every
+    simulated car had one uid, and a trial's run took in 11,600 samples of another car). The
+    reference car keeps the board it always had; one car file is one board across its runs."""
+    if car == CarParams():
+        return {}
+    import hashlib
+
+    return {"uid": list(hashlib.sha256(repr(sorted(asdict(car).items())).encode()).digest()[:8])}
+
 @dataclass
 class Effects:
     on: set = field(default_factory=set)

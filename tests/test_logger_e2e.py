@@ -393,3 +393,23 @@ def test_a_recorded_run_is_never_replaced(tmp_path, monkeypatch):
     log.close()
     assert lg.path.name == "stid-20261123-030021-2.mcap"
     assert (tmp_path / "stid-20261123-030021.mcap").read_bytes() == before
+
+
+def test_a_simulated_car_of_its_own_is_a_board_of_its_own(tmp_path):
+    """Every simulated car had one machine.unique_id(): a trial's logger, waiting for its car to
+    come back (the same board only), took the next stid-sim on that pty, another car, for its own
+    and recorded 11,600 of its samples into the run. A --car file is now a board of its own (the
+    same one on every run of it); the reference car keeps the uid it always had."""
+    cars = {"reference": []}
+    for name, text in (("a", "mass = 5.8\nIz = 0.13\n"), ("b", "mass = 6.1\n")):
+        (tmp_path / f"{name}.toml").write_text(text)
+        cars[name] = ["--car", str(tmp_path / f"{name}.toml")]
+    uid = {}
+    for name, args in [*cars.items(), ("a again", cars["a"])]:
+        out = tmp_path / f"{name}.mcap"
+        subprocess.run([tool("stid-sim"), "--fast", "--duration", "1", "--seed", str(len(uid)), *args, "-o", str(out)],
+                       check=True, capture_output=True, timeout=120)
+        uid[name] = read_log(out).hello["uid"]
+    assert uid["reference"] == "e66038b7133a2b2f"
+    assert len({uid["reference"], uid["a"], uid["b"]}) == 3, uid
+    assert uid["a again"] == uid["a"], uid

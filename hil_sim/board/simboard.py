@@ -162,7 +162,7 @@ class Board:
         # machine.unique_id(): the RP2040's flash id is 8 bytes, the ESP32's MAC 6
         self.rp2040 = rp2040_hw.Rp2040(self) if s.board == "pico" else None
         self.esp32 = esp32_hw.Esp32(self) if s.board == "esp32" else None
-        self.uid = bytes(opts.get("uid", [0xE6, 0x60, 0x38, 0xB7, 0x13, 0x3A, 0x2B, 0x2F][:8 if s.board == "pico" else 6]))
+        self.uid = bytes(opts.get("uid", [0xE6, 0x60, 0x38, 0xB7, 0x13, 0x3A, 0x2B, 0x2F]))[:8 if s.board == "pico" else 6]
 
     def set_baud(self, baud):
         self.baud = baud
