@@ -414,8 +414,10 @@ def test_no_hello_yet_a_missing_file_an_empty_one_and_a_quiet_port_are_said(tmp_
     assert not any("gone quiet" in s for s in src.poll().state)
     time.sleep(0.4)
     snap = src.poll()
-    assert any("no new samples for" in s and "gone quiet" in s for s in snap.state), snap.state
+    assert any("no new samples since" in s and "gone quiet" in s for s in snap.state), snap.state
     assert snap.samples > 0  # what it had is kept
+    time.sleep(1.1)  # (a piped view printed its whole block again whenever the line changed: every 2 s)
+    assert src.poll().state == snap.state
 
 
 def test_targets_from_the_command_line_the_vehicle_file_or_the_default(tmp_path):
@@ -805,3 +807,20 @@ def test_a_single_update_says_done_only_after_its_diagnosis(simdir):
     wrong = once("bicycle")
     assert "done:" not in wrong and "actuator_lag" in wrong and "diagnosis:" in wrong, wrong
     assert "done:" in once("bicycle+actuator_lag")
+
+
+def test_a_parameter_the_data_do_not_determine_is_told_to_drive_random_steer_not_to_steer_less():
+    """A steady circle: Iz had no interval ("the data so far do not determine it"), and the view told
+    the driver "Iz: the interval holds the large-angle geometry ...: steer less", from the geometry's
+    allowance, which was all its interval had. It lacks excitation across frequencies."""
+    from types import SimpleNamespace
+
+    from stid.live.estimator import ParamState
+    from stid.live.lacks import lacking
+
+    res = SimpleNamespace(converged=True, names=["Cf", "Iz"], ci_allowance=np.array([1.0, 0.05]),
+                          delay_allowance=None)
+    params = [ParamState("Cf", "N/rad", 300.0, 3.0, 5.0), ParamState("Iz", "kg m^2", 0.1, None, 1.0)]
+    said = lacking([], res, None, params)
+    assert any(s.startswith("Iz: not determined by the data so far") and "random steer" in s for s in said), said
+    assert not any("steer less" in s and "Iz" in s for s in said), said

@@ -47,6 +47,7 @@ class Source:
         self._sig = None
         self._last = Snapshot(state=[f"waiting for {self.path} to appear"])
         self._last_growth = time.monotonic()
+        self._grew_at = time.time()
         self._samples = -1
         self._chunks: dict = {}  # what the file's chunks held at earlier reads (they never change)
         self._tmp = None  # a directory for the readable copy of a ROS 2 bag being recorded
@@ -66,10 +67,14 @@ class Source:
         if snap.samples != self._samples:
             self._samples = snap.samples
             self._last_growth = now
+            self._grew_at = time.time()
         quiet = now - self._last_growth
         snap.state = [s for s in snap.state if not s.startswith("no new samples")]
         if not snap.finished and quiet >= QUIET_S and snap.samples:
-            snap.state.append(f"no new samples for {quiet:.0f} s: the port has gone quiet (car off, out of range, "
+            # (the clock time it stopped, not a count of seconds: a line that changed every update had
+            # a piped view print its whole block again every 2 s while the port was quiet)
+            since = time.strftime("%H:%M:%S", time.localtime(self._grew_at))
+            snap.state.append(f"no new samples since {since}: the port has gone quiet (car off, out of range, "
                               "unplugged?); the view goes on with what it has")
         return snap
 
