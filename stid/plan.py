@@ -206,10 +206,8 @@ def noise_from_runs(runs, vehicle, model_name: str = "bicycle", label: str = "th
     noise = noise_from_fit(res)
     source = f"the residuals of a {model_name} fit to {label} (model error + sensor noise" + (
         "" if res.converged else "; that fit did not converge, so they also hold the solver's failure")
-    follows = {o: 1.0 - float(np.trapezoid(noise[o][1], noise[o][0])) / max(noise["variance"][o], 1e-300)
-               for o in ("ay", "r")}
     source += "; the part that follows the steer: {}".format(
-        ", ".join(f"{o} {100 * max(x, 0.0):.0f}%" for o, x in follows.items()))
+        ", ".join(f"{o} {100 * x:.0f}%" for o, x in noise["follows_steer"].items()))
     if still is not None:
         band = lambda fp: float(np.mean(np.interp(np.linspace(0.5, 8, 32), *fp)))  # noqa: E731
         ratio = {o: math.sqrt(band(noise[o]) / band(still[o])) for o in ("ay", "r")}
