@@ -195,3 +195,20 @@ def test_ctrl_c_stops_the_logger_and_the_view_ends_on_the_finished_file(tmp_path
     blocks = out.split("] stid live ")
     assert len(blocks) >= 3 and "[file finished]" in blocks[-1], out[-2000:]
     assert summary(err)["line"].endswith("stopped by Ctrl-C"), err
+
+
+def test_a_live_view_that_ends_is_said_and_the_recording_goes_on(tmp_path):
+    """The live view could not serve its page (the port held by another program): it ended at once,
+    and the logger recorded on without a word, the driver watching for a page that never came."""
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        sim = Sim("--duration", 5, "--speed", 4)
+        lg = live_logger(sim.port, tmp_path / "run.mcap", "--duration", 60, "--web", port)
+        sim.wait()
+        _, err = lg.communicate(timeout=90)
+    assert lg.returncode == 0, err
+    assert f"--web {port}: cannot serve" in err, err  # the view's own reason
+    assert "the live view ended (exit 2); recording goes on" in err, err
+    assert summary(err)["samples"] > 1000, err  # nothing of the run was lost to it
