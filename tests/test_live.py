@@ -824,3 +824,37 @@ def test_a_parameter_the_data_do_not_determine_is_told_to_drive_random_steer_not
     said = lacking([], res, None, params)
     assert any(s.startswith("Iz: not determined by the data so far") and "random steer" in s for s in said), said
     assert not any("steer less" in s and "Iz" in s for s in said), said
+
+
+def test_the_page_of_a_single_update_stays_until_ctrl_c(tmp_path, simdir):
+    """`stid live FINISHED --follow --web PORT` made its one update and ended: the page it had just
+    printed the address of refused every connection. It now stays, said so, until Ctrl-C."""
+    import socket
+
+    from simdata import random_steer_pair
+
+    car = Path(__file__).resolve().parents[1] / "docs" / "examples" / "rc8.toml"
+    run = random_steer_pair(simdir)[0]  # (a logged file, finished)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    view = subprocess.Popen([tool("stid"), "live", str(run), "--vehicle", str(car), "--no-diagnose", "--follow",
+                             "--web", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline, state = time.monotonic() + 60, None
+        while state is None and time.monotonic() < deadline and view.poll() is None:
+            time.sleep(0.3)
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/state", timeout=2) as r:
+                    state = json.loads(r.read())
+            except OSError:
+                pass
+        time.sleep(1.0)
+        assert view.poll() is None, view.communicate()  # still serving after its one update
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/state", timeout=2) as r:
+            assert json.loads(r.read())["params"], "the page shows the update"
+    finally:
+        view.send_signal(signal.SIGINT)
+        out, err = view.communicate(timeout=30)
+    assert view.returncode == 0 and "Traceback" not in err, err
+    assert "the page stays at" in out, out

@@ -102,6 +102,12 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
                     pass
             if stop.is_set():
                 break
+        if server is not None and not from_logger and not stop.is_set():
+            # (the page is what was asked for: it had closed with the view's one update on a finished file)
+            _say(view, f"stid live: no more updates ({name} is {'finished' if last.finished else 'as it was'}); "
+                       f"the page stays at {server.url} until Ctrl-C", json_lines)
+            while not stop.wait(0.5):
+                pass
     finally:
         for s, h in old.items():
             signal.signal(s, h)
