@@ -90,7 +90,8 @@ def _stuck_on_model_error(res, short) -> list[str]:
     late = _held_by_allowance(res, short, "delay_allowance") - held
     if late:
         out.append(f"{', '.join(sorted(late))}: the interval holds a delay between the steer and the outputs that the "
-                   "model leaves out (a servo's lag or dead time, a sensor's delay), which more data do not shrink: "
+                   "model leaves out (a servo's lag or dead time, a sensor's delay, or an accelerometer off the CG, "
+                   "whose yaw-acceleration term reads as ay late or early), which more data do not shrink: "
                    "watch a model with it (the diagnosis names which)")
     return out
 
