@@ -205,6 +205,8 @@ def test_an_effect_mimicked_by_another_is_not_named_and_goes_to_unexplained(simd
     top = d.candidates[0]
     assert top.effect == "tyre_relaxation" and top.passes and not top.significant
     assert d.best is None and top.why_not.startswith("not named")
+    # its rear length went to zero: no tyre beyond physics (as it was worded), but none of it seen
+    assert "where that part of the effect vanishes (sigma_r" in top.why_not, top.why_not
     u = d.unexplained
     assert u.significant and u.gap["ay"] > 5
     text = " ".join(u.where)

@@ -130,6 +130,16 @@ def at_bound(result, names, model) -> list:
     return [n for n in names if model.at_bound(n, result.value(n))]
 
 
+def _where_it_vanishes(model, name: str, value: float) -> bool:
+    """Whether ``value`` sits at the end of ``name``'s range beyond which its effect vanishes (the
+    parameter's ``zero`` at or past that bound: a relaxation length's lower end)."""
+    zero = model.param(name).zero
+    if zero is None:
+        return False
+    lo, hi = model.bounds(name)
+    return (zero <= lo and abs(value - lo) <= abs(value - hi)) or (zero >= hi and abs(value - hi) < abs(value - lo))
+
+
 def disagreements(parts: dict, names) -> list:
     """Parameters that are not one value across a partition's groups: (partition, name, text)."""
     out = []
@@ -166,9 +176,15 @@ def check_evidence(model_name: str, effect: str, vehicle, stretches, result, map
     own = [n for n in result.names if result.owners.get(n) == effect]
     stuck = at_bound(result, own, model)
     if stuck:
-        return Evidence(False, "its parameter stopped at the edge of the plausible range ("
-                        + ", ".join(f"{n} = {result.value(n):.4g}{unit_suffix(result.units.get(n, ''))}" for n in stuck)
-                        + "): the data push it outside what the physics allows")
+        values = ", ".join(f"{n} = {result.value(n):.4g}{unit_suffix(result.units.get(n, ''))}" for n in stuck)
+        if all(_where_it_vanishes(model, n, result.value(n)) for n in stuck):
+            # (a rear relaxation length at its lower end is no tyre beyond physics, but none seen: a real
+            # car's log was told "outside what the physics allows" for sigma_r -> 0)
+            return Evidence(False, f"its parameter went to the end of its range where that part of the effect "
+                            f"vanishes ({values}): the data show none of it there, so the effect as the catalogue "
+                            "has it is not what they show")
+        return Evidence(False, f"its parameter stopped at the edge of the plausible range ({values}): the data push "
+                        "it outside what the physics allows")
     parts = parts if parts is not None else fit_groups(model_name, vehicle, stretches, result.all_params(), mapper)
     for kind, groups in parts.items():
         for g in groups:
