@@ -48,18 +48,26 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
         from stid.fit.fitting import fit
 
         res = fit(runs, vehicle, model, method)
-        row.update({"model": res.model, "method": res.method, "converged": bool(res.converged)})
-        for n, v, se in zip(res.names, res.values, res.stderr):
+        row.update({"model": res.model, "method": res.method, "converged": bool(res.converged),
+                    "fitted": " ".join(res.names)})
+        # the 95% intervals `stid fit` prints (none where the data do not determine the parameter): a
+        # drift plot of standard errors drew bars a third of their width, and steps that are none
+        for n, v, se, (lo, hi) in zip(res.names, res.values, res.stderr, res.ci95):
             row[n] = float(v)
             row[f"{n}_se"] = float(se)
+            row[f"{n}_lo"], row[f"{n}_hi"] = float(lo), float(hi)
         for n, (v, _, _) in res.fixed.items():
             row[n] = float(v)
         for o, f in res.fit.items():
             row[f"fit_{o}"] = float(f)
         speeds = [p.vx for p in res.predictions]
         row["speed"] = float(sum(speeds) / len(speeds)) if speeds else float("nan")
-        # the loader's warnings too: the count is what `stid fit` prints for the same file
-        row["warnings"] = len(res.warnings) + sum(len(r.meta.get("warnings", [])) for r in runs)
+        # the loader's warnings too: the count is what `stid fit` prints for the same file, the words
+        # what it says (a run cut short was a bare "3")
+        said = list(dict.fromkeys([*(w for r in runs for w in r.meta.get("warnings", [])), *res.warnings]))
+        row["warnings"] = len(said)
+        row["warning_text"] = " | ".join(said)
+        row["below_floor"] = _below_floor(res, runs)
         if do_diagnose:
             from stid.diagnose import diagnose
 
@@ -70,6 +78,22 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
         row["error"] = str(e)
     row["seconds"] = time.perf_counter() - t0
     return row
+
+
+def _below_floor(res, runs) -> str:
+    """Fit points the model is short of the run's noise floor, where that is beyond chance ("ay 12.3,
+    r 4.1"), as `stid fit` says it; empty otherwise. A model that misses an effect drifts from run to
+    run with the driving, not the car: the plain bicycle's Cf read 96-245 N/rad across one car's runs."""
+    from stid.analysis.noise_floor import below_floor, noise_floor_uncertainty
+    from stid.fit import dataset
+
+    if not res.predictions:
+        return ""
+    try:
+        floor, se = noise_floor_uncertainty(dataset.dynamic_stretches(runs))
+    except StidError:
+        return ""
+    return ", ".join(f"{o} {g:.1f}" for o, g in below_floor(res, floor, se).items())
 
 
 def _progress(done: int, total: int) -> None:
@@ -131,25 +155,41 @@ def write_table(rows, out: Path) -> None:
         df.to_csv(out, index=False)
 
 
-def drift_plot(rows, out: Path, params=("Cf", "Cr", "Iz")) -> Path | None:
-    """Each parameter across the runs, with its standard error: drift (wear, load) shows."""
+def drift_plot(rows, out: Path) -> Path | None:
+    """Each fitted parameter across the runs, with its 95% interval: drift (wear, load, a servo
+    changed) shows. A run whose model is far below its noise floor is drawn hollow and said: its
+    values move with what the model misses, not with the car."""
+    import math
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ok = [r for r in rows if not r.get("error") and all(p in r for p in params)]
-    if not ok:
+    ok = [r for r in rows if not r.get("error")]
+    params = list(dict.fromkeys(n for r in ok for n in str(r.get("fitted", "")).split() if n in r))
+    if not ok or not params:
         return None
-    fig, axes = plt.subplots(len(params), 1, figsize=(8, 2.3 * len(params)), sharex=True)
-    x = range(len(ok))
-    units = {"Cf": "N/rad (per axle)", "Cr": "N/rad (per axle)", "Iz": "kg m^2"}
-    for ax, p in zip(axes, params):
-        ax.errorbar(list(x), [r[p] for r in ok], yerr=[r.get(f"{p}_se", 0) for r in ok], fmt="o", ms=3)
-        ax.set_ylabel(f"{p} [{units.get(p, '')}]")
+    fig, axes = plt.subplots(len(params), 1, figsize=(8, 2.1 * len(params) + 0.6), sharex=True, squeeze=False)
+    units = {"Cf": "N/rad per axle", "Cr": "N/rad per axle", "Iz": "kg m^2", "tau_steer": "s", "x_acc": "m",
+             "delay_s": "s", "sigma_f": "m", "sigma_r": "m", "delta0": "rad"}
+    wrong = [bool(r.get("below_floor")) for r in ok]
+    for ax, p in zip(axes[:, 0], params):
+        for k, r in enumerate(ok):
+            if p not in r or not math.isfinite(r[p]):
+                continue
+            lo, hi = r.get(f"{p}_lo", math.nan), r.get(f"{p}_hi", math.nan)
+            bar = [[r[p] - lo], [hi - r[p]]] if math.isfinite(lo) and math.isfinite(hi) else None
+            ax.errorbar([k], [r[p]], yerr=bar, fmt="o", ms=4, color="C3" if wrong[k] else "C0",
+                        mfc="none" if wrong[k] else "C0")
+        ax.set_ylabel(f"{p} [{units.get(p, '')}]", fontsize=8)
         ax.grid(alpha=0.3)
-    axes[-1].set_xticks(list(x), [Path(r["run"]).stem[:18] for r in ok], rotation=60, fontsize=7)
-    fig.suptitle("Parameters across runs (±1 standard error)")
+    axes[-1, 0].set_xticks(range(len(ok)), [Path(r["run"]).stem[:18] for r in ok], rotation=60, fontsize=7)
+    title = "Parameters across runs (95% intervals as stid fit prints them; no bar: not determined)"
+    if any(wrong):
+        title += ("\nhollow red: the model is far below that run's noise floor (it misses an effect): "
+                  "those values move with it")
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -166,6 +206,12 @@ def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_di
     files = find_runs(pattern)
     if not Path(vehicle).exists():
         raise InputError(f"vehicle file {vehicle} does not exist")
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers {workers}: give 1 or more (or leave it out: one per core)")
+    from stid.models.model import Model
+    from stid.vehicle_file import load_vehicle
+
+    Model(model, load_vehicle(vehicle))  # a misspelt model is said once, before any run is fitted
     rows = run_batch(files, vehicle, model, method, workers, scheduler, do_diagnose)
     out = Path(output)
     write_table(rows, out)
@@ -173,6 +219,11 @@ def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_di
     failed = [r for r in rows if r["error"]]
     print(f"{len(rows) - len(failed)} of {len(rows)} runs fitted; table {out}"
           + (f"; drift plot {plot}" if plot else ""), file=sys.stderr)
+    short = [r for r in rows if not r["error"] and r.get("below_floor")]
+    if short:
+        print(f"  {len(short)} of them far below their noise floor with {model} (the column below_floor): it "
+              "misses an effect there, and their values move with it; stid diagnose on one names it",
+              file=sys.stderr)
     for r in failed:
         print(f"  {r['run']}: {r['error']}", file=sys.stderr)
     return 0 if not failed else PARTLY_FAILED if len(failed) < len(rows) else 1

@@ -40,6 +40,32 @@ def test_batch_on_local_processes(season, tmp_path):
     assert "4 of 5 runs fitted" in r.stderr
     warned = pd.read_csv(out, dtype=str, keep_default_na=False)["warnings"]
     assert all(w == "" or w.isdigit() for w in warned), list(warned)  # a count, not 0.0 (a failed run: empty)
+    # the intervals stid fit prints, and which runs the model misses something in (a trial's plain
+    # bicycle drifted 96-245 N/rad across one car's runs, drawn with bars of one standard error)
+    for n in ("Cf", "Cr", "Iz"):
+        assert ((good[f"{n}_lo"] < good[n]) & (good[n] < good[f"{n}_hi"])).all(), good[[n, f"{n}_lo", f"{n}_hi"]]
+    short = good["below_floor"].fillna("") != ""
+    assert list(short) == list(good["missing_effect"] == "actuator_lag"), good[["run", "below_floor"]]
+    assert "far below their noise floor with bicycle" in r.stderr, r.stderr
+
+
+def test_batch_says_a_misspelt_model_once_before_fitting_and_draws_every_parameter(season, tmp_path):
+    """`--model bicycle+foo` printed one error per run and wrote a table of errors; and the drift plot
+    drew Cf, Cr and Iz only, so a servo changed between sessions (its tau_steer in the table) never
+    showed."""
+    r = subprocess.run([tool("stid"), "batch", str(season), "--vehicle", VEHICLE, "--model", "bicycle+foo",
+                        "-o", str(tmp_path / "m.csv")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "unknown effect 'foo'" in r.stderr and not (tmp_path / "m.csv").exists(), r.stderr
+    from stid.batch import drift_plot
+    import matplotlib.image
+
+    rows = [{"run": f"r{k}", "fitted": "Cf Iz tau_steer", "Cf": 400.0, "Cf_lo": 398.0, "Cf_hi": 402.0, "Iz": 0.25,
+             "Iz_lo": 0.24, "Iz_hi": 0.26, "tau_steer": 0.045 + 0.035 * (k > 1), "tau_steer_lo": float("nan"),
+             "tau_steer_hi": float("nan"), "below_floor": "", "error": ""} for k in range(4)]
+    png = drift_plot(rows, tmp_path / "d.png")
+    height, width = matplotlib.image.imread(png).shape[:2]
+    one = drift_plot([{k: v for k, v in r.items()} | {"fitted": "Cf"} for r in rows], tmp_path / "one.png")
+    assert height > 2.5 * matplotlib.image.imread(one).shape[0] - 200  # three panels where one was asked
 
 
 def test_batch_without_runs_fails_cleanly(tmp_path):
