@@ -228,3 +228,41 @@ def test_two_step_without_body_slip_gives_cf_from_eta_with_its_standard_error(pa
     dcr = veh.b * veh.a / (D * two.values[i]) ** 2 * (hi - lo) / (2 * 1.959964)
     assert dcr <= se <= 5 * dcr + 0.05 * cf, (se, dcr)  # Cr's share, and eta's on top
     assert abs(cf - car.Cf) < 1.96 * se + 0.01 * car.Cf, (cf, se, car.Cf)
+
+
+def test_a_steady_line_fitted_across_the_tyres_saturation_is_said_with_the_linear_gradient():
+    """Steady circles written here from plain physics: the axle forces of steady cornering (m ay b/L
+    front, m ay a/L rear) through a tanh tyre law, the steer L/R + alpha_f - alpha_r. A trial's
+    circle ramped to 2 g and gave eta three times the car's linear gradient, without a word. Past
+    0.4 g, where the line bends, it is said, with the gradient of the points within the linear range;
+    linear tyres over the same range are not."""
+    from stid.fit.dataset import SteadyPoints
+    from stid.fit.steady_fit import fit_steady
+    from stid.models.model import Model
+    from stid.vehicle_file import Vehicle
+
+    m, a, b, Cf, Cr, mu, g = 4.2, 0.152, 0.108, 180.0, 380.0, 1.0, 9.81  # (understeering: the front saturates first)
+    L = a + b
+    veh = Vehicle(name="tanh car", mass=m, a=a, b=b)
+    rng = np.random.default_rng(7)
+    R = 2.5
+    ay = np.linspace(0.5, 0.9 * mu * g, 60)
+    vx = np.sqrt(ay * R)
+
+    def slip(F, C, Fz, saturating):
+        return np.arctanh(F / (mu * Fz)) * mu * Fz / C if saturating else F / C
+
+    eta_true = m / L * (b / Cf - a / Cr)
+    for saturating in (True, False):
+        af = slip(m * ay * b / L, Cf, m * g * b / L, saturating)
+        ar = slip(m * ay * a / L, Cr, m * g * a / L, saturating)
+        steer = L / R + af - ar + 1e-4 * rng.standard_normal(len(ay))
+        res = fit_steady(Model("bicycle", veh), SteadyPoints(steer, ay, vx / R, vx, None))
+        said = [w for w in res.warnings if "past the tyres' linear range" in w]
+        if not saturating:
+            assert not said and res.value("eta") == pytest.approx(eta_true, rel=0.05), res.warnings
+            continue
+        assert said, (res.value("eta"), eta_true, res.warnings)
+        within = float(said[0].split("eta = ")[1].split(" ")[0])
+        assert within == pytest.approx(eta_true, rel=0.25), (said[0], eta_true)  # (0.4 g is not quite linear)
+        assert abs(res.value("eta") / eta_true - 1) > 0.25  # the line over all of it is off
