@@ -254,7 +254,7 @@ def _cmd_compare(args) -> int:
     if args.json:
         print(_json({"models": [{k: v for k, v in e.items() if not k.startswith("_")} for e in entries]}))
     else:
-        print(comparison_text(entries, args.runs, args.vehicle))
+        print(comparison_text(entries, args.runs, args.vehicle, validate=args.validate))
     return 0
 
 

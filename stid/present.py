@@ -202,20 +202,26 @@ def _which(passed: dict) -> str:
     return "yes" if len(ok) == len(passed) else f"{' '.join(ok)} only" if ok else "no"
 
 
-def comparison_text(entries, runs=None, vehicle_path=None) -> str:
+def comparison_text(entries, runs=None, vehicle_path=None, validate=None) -> str:
     """One table: headers above the rows, full model names, then the verdict (and the command
-    to run next on the same files)."""
+    to run next: on the same files, or on the held-out ones ``validate`` where the models were
+    judged there)."""
     lines = []
     names = [e["model"] for e in entries]
     w = max(14, max(len(n) for n in names) + 2)
     validated = entries[0].get("validated_on")
     where = f"judged on {', '.join(validated)} (not fitted to)" if validated else "judged on the fitted runs"
-    lines.append(f"fit percent {where}; AIC/BIC from the Gaussian likelihood of the fit")
+    # the BIC shown is the one the verdict takes, on the effective samples (a trial read the verdict's
+    # "on 341 effective samples" beside a column whose penalty counted 43,000)
+    eff = all("bic_effective" in e for e in entries)
+    lines.append(f"fit percent {where}; AIC/BIC from the Gaussian likelihood of the fit"
+                 + ("" if not validated else " (on the fitted runs)")
+                 + ("; BIC on the effective samples (the residuals' over their correlation time)" if eff else ""))
     lines.append(f"{'model':<{w}}{'fit ay':>8}{'fit r':>8}{'AIC':>12}{'BIC':>12}  residual white   indep. of steer")
     for e in entries:
         white, indep = _which(e["white"]), _which(e["independent"])
         lines.append(f"{e['model']:<{w}}{_pct(e['fit']['ay']):>8}{_pct(e['fit']['r']):>8}{e['aic']:12.0f}"
-                     f"{e['bic']:12.0f}  {white:<15}  {indep}")
+                     f"{(e['bic_effective'] if eff else e['bic']):12.0f}  {white:<15}  {indep}")
     for e in entries:
         if not e.get("converged", True):
             lines.extend(_wrap(f"{e['model']} did not converge: its row is where the solver stopped "
@@ -230,7 +236,7 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
                        "cross-correlation inside it. At the noise floor a residual may still be coloured: the "
                        "sensor noise is filtered too)", indent="", first=""))
     lines.append("")
-    lines.append(_verdict(entries, runs, vehicle_path))
+    lines.append(_verdict(entries, validate or runs, vehicle_path, held_out=bool(validate)))
     for title, key in (("fit per frequency band", "by_band"), ("fit per |ay| bin", "by_ay"), ("fit per run", "by_run")):
         lines.append("")
         lines.append(f"{title} (ay / r):")
@@ -244,7 +250,7 @@ def comparison_text(entries, runs=None, vehicle_path=None) -> str:
     return "\n".join(lines)
 
 
-def _verdict(entries, runs=None, vehicle_path=None) -> str:
+def _verdict(entries, runs=None, vehicle_path=None, held_out: bool = False) -> str:
     fl, se = entries[0]["noise_floor"], entries[0].get("noise_floor_stderr", {"ay": 0.0, "r": 0.0})
     # a fit that did not converge is no candidate for the best (unless none did)
     best = min([e for e in entries if e.get("converged", True)] or entries,
@@ -275,6 +281,11 @@ def _verdict(entries, runs=None, vehicle_path=None) -> str:
         text += ((" reaches" if one else " and reaches") + " the noise floor"
                  + (f" of {', '.join(known)} (there is none for the other)" if len(known) < 2 else "")
                  + ": nothing more this data can show")
+    elif held_out:  # (short on runs it was not fitted to: diagnose those, where it falls short)
+        text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
+                 + " short of the noise floor on the held-out runs: they hold what the fitted ones do not (the car "
+                 "changed between them, or they drove what shows an effect); to see what:\n"
+                 + "next: " + _command(runs, vehicle_path, "diagnose", "--model", best["model"]))
     else:
         text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
                  + " short of the noise floor; to see what is missing:\n"

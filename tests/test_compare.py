@@ -38,6 +38,11 @@ def test_compare_validates_on_a_run_it_was_not_fitted_to(simdir):
               "--json")
     doc = json.loads(j.stdout)["models"][0]
     assert doc["validated_on"] == [judge_on.name] and doc["fit"]["ay"] > 95
+    # short of the floor on the held-out run, the next command diagnoses that run (a trial's compare
+    # sent it back to the fitted runs, where the model was already at the floor)
+    short = _stid("compare", fit_on, "--validate", judge_on, "--vehicle", RC8, "--model", "bicycle")
+    assert "short of the noise floor on the held-out runs" in short.stdout, short.stdout
+    assert f"next: stid diagnose {judge_on}" in short.stdout, short.stdout
 
 
 def test_fit_far_below_the_floor_says_so_and_points_to_diagnose(simdir):
