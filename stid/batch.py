@@ -20,14 +20,23 @@ from stid.output_paths import refuse_existing
 
 
 def find_runs(pattern: str) -> list[str]:
+    """The runs at ``pattern`` (a directory or a glob), in the order their names count: run_2 before
+    run_10 (sorted as text, a trial's session 10 was drawn before sessions 1 and 2 on the drift plot)."""
     p = Path(pattern)
     if p.is_dir():
-        files = sorted(str(f) for f in p.iterdir() if _is_run(f))
+        files = sorted((str(f) for f in p.iterdir() if _is_run(f)), key=_counted)
     else:
-        files = sorted(f for f in glob.glob(pattern) if _is_run(Path(f)))
+        files = sorted((f for f in glob.glob(pattern) if _is_run(Path(f))), key=_counted)
     if not files:
         raise InputError(f"no .mcap, .bag or .csv runs (or ROS 2 bag directories) found at {pattern!r}")
     return files
+
+
+def _counted(name: str) -> list:
+    """A name's sort key with its numbers as numbers ("run_10" after "run_2")."""
+    import re
+
+    return [(0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name)]
 
 
 def _is_run(f: Path) -> bool:

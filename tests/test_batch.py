@@ -91,3 +91,13 @@ def test_batch_on_a_local_dask_cluster(season, tmp_path):
         assert len(df) == 5 and df["error"].isna().sum() == 4
     finally:
         cluster.close()
+
+
+def test_runs_are_taken_in_the_order_their_names_count(tmp_path):
+    """Sorted as text, a trial's session 10 (run_10a) came before sessions 1 and 2 on the drift plot."""
+    from stid.batch import find_runs
+
+    for name in ("run_10a.mcap", "run_2a.mcap", "run_1b.mcap", "run_1a.mcap", "notes.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.rsplit("/", 1)[1] for p in find_runs(str(tmp_path))] == ["run_1a.mcap", "run_1b.mcap", "run_2a.mcap",
+                                                                       "run_10a.mcap"]
