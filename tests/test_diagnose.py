@@ -529,3 +529,34 @@ def test_above_the_floor_two_steer_amplitudes_tell_a_tyre_law_from_a_locked_diff
     rounds = diagnose(runs(("tyre_saturation", "locked_diff")), rc_vehicle, "bicycle", peel=True)
     assert sorted(e for d in rounds for e in d.named) == ["locked_diff", "tyre_saturation"], \
         [d.named for d in rounds]
+
+
+def test_a_steer_held_on_a_circle_is_no_amplitude_of_steering(simdir, rc_vehicle):
+    """A steady circle among random-steer runs formed its own "steer 0.7 deg rms" group in the evidence:
+    fitted alone, a trial's 2 g circle found no servo lag in its corrections and vetoed the one the
+    random steer showed, and the diagnosis said "the catalogue lacks it" where the three random-steer
+    runs alone named the lag and the accelerometer offset. A steer held or swept slowly is not grouped
+    by amplitude; it still counts in the fits and the speed groups."""
+    import numpy as np
+
+    from stid.analysis.evidence import _steered, partitions
+    from stid.fit.dataset import Stretch, dynamic_stretches
+
+    fs = 200.0
+    t = np.arange(int(30 * fs)) / fs
+    rng = np.random.default_rng(1)
+    spec = np.fft.rfft(rng.standard_normal(len(t)))
+    spec[np.fft.rfftfreq(len(t), 1 / fs) > 3.0] = 0.0
+    random_steer = np.fft.irfft(spec, len(t))
+    held = 0.05 + 0.01 * np.sin(2 * np.pi * t / 30.0) + 0.0005 * rng.standard_normal(len(t))  # a circle, corrected
+
+    def stretch(steer):
+        z = np.zeros(len(t))
+        return Stretch("s", t, steer, z, z, np.full(len(t), 4.0), 4.0)
+
+    assert _steered(stretch(0.03 * random_steer / np.std(random_steer))) and not _steered(stretch(held))
+    circle = sim_run(simdir, "steady_circle", seed=3, speed=2.0, speed_end=7.0, duration=40, steer_amp=0.06)
+    runs = load_runs(random_steer_pair(simdir) + [circle], rc_vehicle)
+    groups = partitions(dynamic_stretches(runs)).get("amplitude", [])
+    assert not any(all(s.name.startswith(circle.name) for s in g.stretches) for g in groups), \
+        [(g.label, [s.name for s in g.stretches]) for g in groups]

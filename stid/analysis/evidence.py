@@ -21,6 +21,7 @@ from stid.models.params import unit_suffix
 SPEED_STEP = 1.15  # a new speed group starts 15% above the last one's slowest stretch
 AMP_STEP = 1.5  # a new amplitude group starts at 1.5x the last one's smallest steer rms
 MIN_GROUP_S = 10.0  # seconds of data a group needs for its own fit
+STEERED_HZ, STEERED_SHARE = 0.5, 0.25  # steering: a quarter of the steer's variance above 0.5 Hz (_steered)
 Z99_OVER_Z95 = 2.576 / 1.96  # the intervals are 95%; the test is at 99% (several parameters, pairs)
 # Two values are "not one value" only when they differ beyond their intervals AND by more than
 # this share of the larger: the intervals hold noise and the model error that varies within a
@@ -101,11 +102,26 @@ def partitions(stretches) -> dict:
                       lambda g: f"{np.median([s.vx for s in g]):.1f} m/s")
     if by_speed:
         out["speed"] = by_speed
-    by_amp = _split(stretches, lambda s: float(np.std(s.steer)), AMP_STEP,
+    by_amp = _split([s for s in stretches if _steered(s)], lambda s: float(np.std(s.steer)), AMP_STEP,
                     lambda g: f"steer {np.degrees(np.median([np.std(s.steer) for s in g])):.1f} deg rms")
     if by_amp:
         out["amplitude"] = by_amp
     return out
+
+
+def _steered(st) -> bool:
+    """Whether a stretch's steer is steering: most of its variance above STEERED_HZ. A steer held or
+    swept slowly (a steady circle: 3% of it above 0.5 Hz, where random steer has 86-92%) has no
+    amplitude of steering to compare; fitted as its own "steer 0.7 deg rms" group, a trial's 2 g
+    circle found no servo lag in its corrections and vetoed the one the random steer showed."""
+    from scipy import signal
+
+    x = np.asarray(st.steer, float)
+    fs = 1.0 / float(st.dt)
+    if len(x) < 16 or not np.std(x) > 0:
+        return False
+    f, P = signal.welch(x - x.mean(), fs=fs, nperseg=min(len(x), int(8 * fs)))
+    return bool(P[f >= STEERED_HZ].sum() >= STEERED_SHARE * P.sum())
 
 
 def _fit_group(job):
