@@ -19,10 +19,21 @@ from stid.errors import InputError, StidError
 from stid.output_paths import refuse_existing
 
 
-def find_runs(pattern: str) -> list[str]:
-    """The runs at ``pattern`` (a directory or a glob), in the order their names count: run_2 before
-    run_10 (sorted as text, a trial's session 10 was drawn before sessions 1 and 2 on the drift plot)."""
+def find_runs(pattern) -> list[str]:
+    """The runs at ``pattern`` (a directory or a glob; or a list of them: the files a shell expanded an
+    unquoted glob into, which argparse refused as "unrecognized arguments"), in the order their names
+    count: run_2 before run_10 (sorted as text, a trial's session 10 was drawn before sessions 1 and 2
+    on the drift plot)."""
+    if not isinstance(pattern, str):
+        if len(pattern) == 1:
+            return find_runs(pattern[0])
+        missing = [f for f in pattern if not Path(f).exists()]
+        if missing:
+            raise InputError(f"{missing[0]} does not exist")
+        return [f for f in pattern if _is_run(Path(f))] or find_runs(pattern[0])
     p = Path(pattern)
+    if not glob.has_magic(pattern) and not p.exists():
+        raise InputError(f"{pattern} does not exist: give a directory of runs or a glob like 'logs/*.mcap'")
     if p.is_dir():
         files = sorted((str(f) for f in p.iterdir() if _is_run(f)), key=_counted)
     else:

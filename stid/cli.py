@@ -519,7 +519,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_live)
 
     p = sub.add_parser("batch", help="fit (and diagnose) many runs in parallel; one table and drift plots")
-    p.add_argument("runs", metavar="DIR_OR_GLOB", help="a directory of runs or a glob like 'logs/*.mcap'")
+    p.add_argument("runs", metavar="DIR_OR_GLOB", nargs="+",
+                   help="a directory of runs, a glob like 'logs/*.mcap', or the run files (as a shell expands one)")
     p.add_argument("--vehicle", required=True)
     p.add_argument("--model", default="bicycle")
     p.add_argument("--method", default="time", choices=["time", "freq", "auto"])

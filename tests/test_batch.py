@@ -101,3 +101,15 @@ def test_runs_are_taken_in_the_order_their_names_count(tmp_path):
         (tmp_path / name).write_bytes(b"")
     assert [p.rsplit("/", 1)[1] for p in find_runs(str(tmp_path))] == ["run_1a.mcap", "run_1b.mcap", "run_2a.mcap",
                                                                        "run_10a.mcap"]
+
+
+def test_a_glob_the_shell_expanded_is_taken_and_a_missing_directory_is_said(season, tmp_path):
+    """`stid batch logs/run_1*.mcap` unquoted: the shell gives the files, and argparse refused them as
+    "unrecognized arguments"; a directory that does not exist was "no ... runs found"."""
+    files = sorted(str(p) for p in season.glob("random_steer*.mcap"))[:2]
+    r = subprocess.run([tool("stid"), "batch", *files, "--vehicle", VEHICLE, "--workers", "1", "-o",
+                        str(tmp_path / "two.csv")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and "2 of 2 runs fitted" in r.stderr, r.stderr
+    gone = subprocess.run([tool("stid"), "batch", str(tmp_path / "nosuchdir"), "--vehicle", VEHICLE, "-o",
+                           str(tmp_path / "x.csv")], capture_output=True, text=True, timeout=60)
+    assert gone.returncode == 2 and "nosuchdir does not exist" in gone.stderr, gone.stderr
