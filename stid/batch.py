@@ -30,7 +30,7 @@ def find_runs(pattern) -> list[str]:
         missing = [f for f in pattern if not Path(f).exists()]
         if missing:
             raise InputError(f"{missing[0]} does not exist")
-        return [f for f in pattern if _is_run(Path(f))] or find_runs(pattern[0])
+        return sorted((f for f in pattern if _is_run(Path(f))), key=_counted) or find_runs(pattern[0])
     p = Path(pattern)
     if not glob.has_magic(pattern) and not p.exists():
         raise InputError(f"{pattern} does not exist: give a directory of runs or a glob like 'logs/*.mcap'")
@@ -199,13 +199,15 @@ def drift_plot(rows, out: Path) -> Path | None:
             if p not in r or not math.isfinite(r[p]):
                 continue
             lo, hi = r.get(f"{p}_lo", math.nan), r.get(f"{p}_hi", math.nan)
-            bar = [[r[p] - lo], [hi - r[p]]] if math.isfinite(lo) and math.isfinite(hi) else None
-            ax.errorbar([k], [r[p]], yerr=bar, fmt="o", ms=4, color="C3" if wrong[k] else "C0",
-                        mfc="none" if wrong[k] else "C0")
+            known = math.isfinite(lo) and math.isfinite(hi)
+            bar = [[r[p] - lo], [hi - r[p]]] if known else None
+            ax.errorbar([k], [r[p]], yerr=bar, fmt="o" if known else "x", ms=4, color="C3" if wrong[k] else "C0",
+                        mfc="none" if wrong[k] else "C0", capsize=3)
         ax.set_ylabel(f"{p} [{units.get(p, '')}]", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xticks(range(len(ok)), [Path(r["run"]).stem[:18] for r in ok], rotation=60, fontsize=7)
-    title = "Parameters across runs (95% intervals as stid fit prints them; no bar: not determined)"
+    # (an interval narrower than its dot shows as the caps alone: "no bar" had read as "not determined")
+    title = "Parameters across runs (95% intervals as stid fit prints them, some narrower than the dot; x: no interval)"
     if any(wrong):
         title += ("\nhollow red: the model is far below that run's noise floor (it misses an effect): "
                   "those values move with it")

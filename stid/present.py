@@ -210,7 +210,9 @@ def comparison_text(entries, runs=None, vehicle_path=None, validate=None) -> str
     names = [e["model"] for e in entries]
     w = max(14, max(len(n) for n in names) + 2)
     validated = entries[0].get("validated_on")
-    where = f"judged on {', '.join(validated)} (not fitted to)" if validated else "judged on the fitted runs"
+    # (as given: a held-out sessC/rs5.mcap read as "rs5.mcap", the name of a fitted run too)
+    where = f"judged on {', '.join(map(str, validate or validated))} (not fitted to)" if validated else \
+        "judged on the fitted runs"
     # the BIC shown is the one the verdict takes, on the effective samples (a trial read the verdict's
     # "on 341 effective samples" beside a column whose penalty counted 43,000)
     eff = all("bic_effective" in e for e in entries)
@@ -281,11 +283,15 @@ def _verdict(entries, runs=None, vehicle_path=None, held_out: bool = False) -> s
         text += ((" reaches" if one else " and reaches") + " the noise floor"
                  + (f" of {', '.join(known)} (there is none for the other)" if len(known) < 2 else "")
                  + ": nothing more this data can show")
-    elif held_out:  # (short on runs it was not fitted to: diagnose those, where it falls short)
+    elif held_out:  # (short on runs it was not fitted to: fit those, and see what moved)
+        single = runs is not None and len(runs) == 1
+        held, they, hold, them = ("run", "it", "holds", "it") if single else ("runs", "they", "hold", "them")
         text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
-                 + " short of the noise floor on the held-out runs: they hold what the fitted ones do not (the car "
-                 "changed between them, or they drove what shows an effect); to see what:\n"
-                 + "next: " + _command(runs, vehicle_path, "diagnose", "--model", best["model"]))
+                 + f" short of the noise floor on the held-out {held}: {they} {hold} what the fitted ones do not (the "
+                 f"car changed between them, or {they} drove what shows an effect); fit {them} alone: a parameter that "
+                 "moved from the fitted runs' is the car that changed, and a fit still far below its floor there is "
+                 "an effect to diagnose:\n"
+                 + "next: " + _command(runs, vehicle_path, "fit", "--model", best["model"]))
     else:
         text += ((" stays " if one else " but stays ") + ", ".join(f"{o} {g:.1f} points" for o, g in gap.items())
                  + " short of the noise floor; to see what is missing:\n"

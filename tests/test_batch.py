@@ -107,9 +107,12 @@ def test_a_glob_the_shell_expanded_is_taken_and_a_missing_directory_is_said(seas
     """`stid batch logs/run_1*.mcap` unquoted: the shell gives the files, and argparse refused them as
     "unrecognized arguments"; a directory that does not exist was "no ... runs found"."""
     files = sorted(str(p) for p in season.glob("random_steer*.mcap"))[:2]
-    r = subprocess.run([tool("stid"), "batch", *files, "--vehicle", VEHICLE, "--workers", "1", "-o",
+    r = subprocess.run([tool("stid"), "batch", *files[::-1], "--vehicle", VEHICLE, "--workers", "1", "-o",
                         str(tmp_path / "two.csv")], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0 and "2 of 2 runs fitted" in r.stderr, r.stderr
+    from stid.batch import _counted
+
+    assert list(pd.read_csv(tmp_path / "two.csv")["run"]) == sorted(files, key=_counted)  # as their names count
     gone = subprocess.run([tool("stid"), "batch", str(tmp_path / "nosuchdir"), "--vehicle", VEHICLE, "-o",
                            str(tmp_path / "x.csv")], capture_output=True, text=True, timeout=60)
     assert gone.returncode == 2 and "nosuchdir does not exist" in gone.stderr, gone.stderr
