@@ -74,7 +74,7 @@ def residual_model(predictions, seg_s: float = 4.0) -> dict:
             var += float(np.sum(e ** 2))
             weights.append(len(e))
             # Hann segments overlapping by half: each counts as 1 / 1.056 of an independent one
-            segments.append(max((len(e) - nper) // (nper // 2) + 1, 1) / (1.056 if len(e) > nper else 1.0))
+            segments.append(max((len(e) - nper) // max(nper // 2, 1) + 1, 1) / (1.056 if len(e) > nper else 1.0))
         Pee, Puu, Peu = acc_p / w, acc_u / w, acc_c / w
         ok = Puu > 1e-12 * max(Puu.max(), 1e-300)
         G = np.where(ok, Peu / np.where(ok, Puu, 1.0), 0.0)

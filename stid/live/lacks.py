@@ -24,10 +24,10 @@ from dataclasses import replace
 import numpy as np
 
 from stid.errors import InputError
+from stid.fit.steady_fit import LINEAR_AY  # (m/s^2: beyond about 0.4 g the tyres leave their linear range)
 
 PLAN_S = 20.0  # seconds of each option's planned spectrum (information per second is taken from it)
 MAX_S = 3600.0  # more than an hour of one thing is not a suggestion
-LINEAR_AY = 0.4 * 9.81  # m/s^2: beyond about 0.4 g the tyres leave their linear range
 # the loader takes the gyro zero from the stand-still less its last second before the car drives off
 # (stid.convert.START_LOOKBACK_S): asked for 2 s, a trial's driver got a zero from 0.8 s
 STILL_S = 3.0
