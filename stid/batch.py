@@ -104,16 +104,9 @@ def _below_floor(res, runs) -> str:
     """Fit points the model is short of the run's noise floor, where that is beyond chance ("ay 12.3,
     r 4.1"), as `stid fit` says it; empty otherwise. A model that misses an effect drifts from run to
     run with the driving, not the car: the plain bicycle's Cf read 96-245 N/rad across one car's runs."""
-    from stid.analysis.noise_floor import below_floor, noise_floor_uncertainty
-    from stid.fit import dataset
+    from stid.analysis.noise_floor import runs_below_floor
 
-    if not res.predictions:
-        return ""
-    try:
-        floor, se = noise_floor_uncertainty(dataset.dynamic_stretches(runs))
-    except StidError:
-        return ""
-    return ", ".join(f"{o} {g:.1f}" for o, g in below_floor(res, floor, se).items())
+    return ", ".join(f"{o} {g:.1f}" for o, g in runs_below_floor(res, runs).items())
 
 
 def _progress(done: int, total: int) -> None:

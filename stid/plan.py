@@ -222,16 +222,9 @@ def missing_effect_warning(res, runs, paths: list, vehicle_path: str) -> list[st
     misses an effect bends its fitted values to make up for it (a trial's car with a 40 ms servo
     lag, fitted and planned as a bicycle: Iz +90%, planned to 2.1%), and nothing else in a plan
     says so."""
-    from stid.analysis.noise_floor import below_floor, noise_floor_uncertainty
-    from stid.fit import dataset
+    from stid.analysis.noise_floor import runs_below_floor
 
-    if not res.predictions:
-        return []
-    try:
-        floor, se = noise_floor_uncertainty(dataset.dynamic_stretches(runs))
-    except InputError:
-        return []
-    short = below_floor(res, floor, se)
+    short = runs_below_floor(res, runs)
     if not short:
         return []
     import shlex

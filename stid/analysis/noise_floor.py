@@ -302,6 +302,21 @@ def below_floor(res, floor, se) -> dict:
             if o in res.fit and np.isfinite(floor[o]) and floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
 
 
+def runs_below_floor(res, runs) -> dict:
+    """below_floor of a fit ``res`` against the noise floor of the runs it was fitted to ({} where
+    they hold nothing to estimate one from): `stid plan` and `stid batch` judge their fits so."""
+    from stid.errors import StidError
+    from stid.fit import dataset
+
+    if not res.predictions:
+        return {}
+    try:
+        floor, se = noise_floor_uncertainty(dataset.dynamic_stretches(runs))
+    except StidError:
+        return {}
+    return below_floor(res, floor, se)
+
+
 def above_floor(fit: dict, floor, se) -> dict:
     """Per output, how many fit points a model is above the noise floor, where that is more than
     chance (2.576 standard errors of the floor) and half a point: then the floor is no reference.
