@@ -68,13 +68,15 @@ def test_the_filter_does_what_a_low_pass_does():
 
 def test_fit_and_diagnose_run_without_scipy_signal(tmp_path):
     """The reason the module exists: ``stid fit`` and ``stid diagnose`` on another logger's
-    runs (single-track physics solved in the test) never import scipy.signal."""
+    runs (single-track physics solved in the test) never import scipy.signal. The runs carry a
+    servo trim, so that the diagnosis names it and weighs its evidence too (a Welch there had
+    brought the import back, 0.6 s of every diagnosis that names something)."""
     from test_track_runs import A, B, M, bicycle_run, swinging, write_csv
 
     paths = []
     for seed in (1, 2):
         p = tmp_path / f"run{seed}.csv"
-        write_csv(p, bicycle_run(swinging, T=12.0, seed=seed))
+        write_csv(p, bicycle_run(swinging, T=12.0, seed=seed, trim=np.radians(1.5)))
         paths.append(str(p))
     veh = tmp_path / "car.toml"
     veh.write_text(f'name = "test car"\nmass = {M}\na = {A}\nb = {B}\n')
@@ -86,3 +88,4 @@ def test_fit_and_diagnose_run_without_scipy_signal(tmp_path):
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
         assert out.returncode == 0, out.stderr[-2000:]
         assert "scipy.signal" not in out.stderr
+    assert "steer_offset" in out.stdout and "NAMED" in out.stdout  # the evidence was weighed
