@@ -166,6 +166,91 @@ def test_a_stretch_simulates_the_same_whatever_was_simulated_before_it():
         assert np.sqrt(np.mean((after[:, j] - fast[out]) ** 2)) / np.std(fast[out]) < 1e-4
 
 
+def test_a_jacobians_columns_simulated_in_one_batch_are_each_column_alone():
+    """A forward-difference Jacobian simulates as many parameter sets as the model has parameters,
+    each a little apart; Model.simulate_many discretises them in one batch. The numbers must be
+    those each set gives alone (a column is a difference over a relative step of 1.5e-8: a
+    round-off apart in one of the two would show in it), on the models the batch takes (a servo
+    run apart ahead of a linkage map; a sensor's place, which moves no state matrix) and on one it
+    hands back to one by one (a user's effect with another speed law than the single track's)."""
+    from stid.models import lpv
+    from stid.models.effect import Effect
+    from stid.models.params import Param
+
+    class SpeedSquared(Effect):  # (not registered: only this model has it)
+        name = "speed_squared_test"
+        stage = "output"
+        params = (Param("k_v2", "s", "a yaw-rate gain that grows with the square of the speed", 0.01, 0.0, 1.0),)
+
+        def apply(self, sys, p, ctx):
+            sys = sys.copy()
+            sys.add_to_output("r", state=sys.states[1], gain=p["k_v2"] * ctx.vx ** 2 * 1e-3)
+            return sys
+
+    run = bicycle_run(swinging, T=12.0, seed=3)
+    cases = [Model("bicycle", VEHICLE), Model("bicycle+actuator_lag+steering_nonlinearity", VEHICLE),
+             Model("bicycle+body_roll+accel_offset", VEHICLE)]
+    custom = Model("bicycle", VEHICLE)
+    custom.effects.append(SpeedSquared())
+    custom._ordered.append(custom.effects[-1])
+    custom.params.append(SpeedSquared.params[0])
+    custom._law_known = False
+    for model in cases + [custom]:
+        p = model.defaults()
+        p.update({k: v for k, v in TRUE.items() if k in p})
+        ps = [p] + [{**p, n: p[n] + 1.5e-8 * max(abs(p[n]), 1.0)} for n in model.param_names]
+        lpv._NODE_FOH.clear()
+        model._laws.clear()
+        alone = [model.simulate(q, run["steer"], 1 / 200.0, run["vx"]) for q in ps]
+        lpv._NODE_FOH.clear()
+        model._laws.clear()
+        batch = model.simulate_many(ps, run["steer"], 1 / 200.0, run["vx"])
+        scale = np.abs(alone[0]).max(axis=0)
+        for q, a, b in zip(ps, alone, batch):
+            assert np.all(np.abs(a - b).max(axis=0) <= 1e-13 * scale), (model.name, q)
+        for n, a, b in zip(model.param_names, alone[1:], batch[1:]):  # the Jacobian's columns
+            ja, jb = a - alone[0], b - batch[0]
+            assert np.linalg.norm(jb - ja) <= 1e-5 * np.linalg.norm(ja) + 1e-15 * np.linalg.norm(alone[0]), \
+                (model.name, n)
+    assert not custom._law(custom.defaults(), ["ay", "r"], ["delta"], None, False).ok  # it did take the other path
+
+
+def test_a_stack_of_discretisations_with_one_defective_system_gives_each_its_own():
+    """The batched first-order hold takes each system in its eigenbasis, and one whose eigenvector
+    matrix cannot be inverted by the matrix exponential. One such system in a stack (a Jacobian's
+    batch) had sent every other one to the exponential too (numpy inverts a stack at once, and
+    fails it whole): each is to keep its own way, and its own numbers to round-off."""
+    from stid.models.lpv import _batched_foh
+
+    rng = np.random.default_rng(0)
+    A = -np.eye(2)[None] * rng.uniform(1, 20, (6, 1, 1)) + rng.normal(0, 3, (6, 2, 2))
+    A[3] = [[-5.0, 1.0], [0.0, -5.0]]  # defective (a repeated pole)
+    A[4] = [[0.0, 0.0], [0.0, 0.0]]  # poles at zero: the exponential's case too
+    B = rng.normal(0, 1, (6, 2, 1))
+    eig = np.linalg.eig
+
+    def eig_singular_at_3(M):  # the eigenvectors of system 3 exactly parallel, as numpy may give them
+        lam, V = eig(M)
+        if len(M) == 6:
+            V[3] = [[1.0, 1.0], [0.0, 0.0]]
+        elif np.array_equal(M[0], A[3]):
+            V[0] = [[1.0, 1.0], [0.0, 0.0]]
+        return lam, V
+
+    np.linalg.eig = eig_singular_at_3
+    try:
+        stacked = _batched_foh(A, B, 0.005)
+        alone = [_batched_foh(A[i:i + 1], B[i:i + 1], 0.005) for i in range(6)]
+    finally:
+        np.linalg.eig = eig
+    for i in range(6):  # (sent to the exponential, the others were 5e-14 to 2e-13 of their size off)
+        for s, a in zip(stacked, alone[i]):
+            assert np.max(np.abs(s[i] - a[0])) <= 1e-15 * np.max(np.abs(a[0])), i
+    # and the exponential is right for the defective one: F = e^{A dt}
+    from scipy.linalg import expm
+    assert np.allclose(stacked[0][3], expm(A[3] * 0.005), rtol=1e-12)
+
+
 @pytest.mark.parametrize("fs, target, q", [(500.0, 200.0, 3), (500.0 * (1 + 1e-13), 200.0, 3),
                                            (500.0 * (1 - 1e-13), 200.0, 3), (400.0, 200.0, 2),
                                            (1000.0, 200.0, 5), (300.0, 200.0, 1), (200.0, 200.0, 1),

@@ -115,8 +115,11 @@ class _Residuals:
     Jacobian are known already (``known``: a re-weighted solve continues where the
     previous one ended, and scipy would compute both again: n + 1 simulations)."""
 
-    def __init__(self, residual, space: ParamSpace, lo, hi, diff_step=None, known=None):
+    def __init__(self, residual, space: ParamSpace, lo, hi, diff_step=None, known=None, many=None):
         self.residual, self.space, self.lo, self.hi = residual, space, lo, hi
+        # the residual vectors of many parameter sets at once, where the caller can (the columns of a
+        # Jacobian: a linear model discretises them in one batch, Model.simulate_many)
+        self.many = many or (lambda ps: [residual(p) for p in ps])
         self.diff_step = diff_step
         self.known = known
         self.last = None  # (x, f) of the newest evaluation: the differences start from it
@@ -141,10 +144,13 @@ class _Residuals:
         # column-major: each column is written at once, and the solver's column norms and SVD
         # (LAPACK's order) read it without a copy (the column norms of 400,000 rows: 8.3 -> 0.9 ms)
         J = np.empty((f0.size, x.size), order="F")
+        moved = []
         for i in range(x.size):
             x1 = x.copy()
             x1[i] = x[i] + h[i]
-            J[:, i] = (self.residual(self.space.to_p(x1)) - f0) / (x1[i] - x[i])
+            moved.append(x1)
+        for i, (x1, f1) in enumerate(zip(moved, self.many([self.space.to_p(x1) for x1 in moved]))):
+            J[:, i] = (np.asarray(f1, float) - f0) / (x1[i] - x[i])
         self.last = (np.array(x, float), f0)
         self.last_jac = (self.last[0], f0, J)
         return J
@@ -165,13 +171,14 @@ class _Residuals:
 
 
 def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = False, known=None,
-                  colour: float = 1.0, **kw):
+                  colour: float = 1.0, many=None, **kw):
     """Run scipy's bounded trust-region least squares from each start; keep the best.
     ``unit_noise``: the residuals are scaled to unit noise, so the solve stops once it is
     statistically at the optimum (stop_when_stationary), in standard errors of residuals
     whose integrated autocorrelation time is ``colour`` samples. ``known``: (x, residuals,
     Jacobian) at the first start, in the solver's coordinates, when the caller has them
-    (the Jacobian may be None: then only the residuals are known)."""
+    (the Jacobian may be None: then only the residuals are known). ``many(ps)``: the residuals of
+    many parameter sets at once, where the caller has a faster way than one by one."""
     lo, hi = space.bounds_x()
     diff_step = None
     if getattr(space.model, "nonlinear", False):
@@ -186,7 +193,7 @@ def least_squares(residual, space: ParamSpace, starts: list, unit_noise: bool = 
             # the same point (up to the round trip through physical units): start exactly there
             x0 = start_known = np.array(known[0], float)
         prob = _Residuals(residual, space, lo, hi, diff_step,
-                          (x0, known[1], known[2]) if start_known is not None else None)
+                          (x0, known[1], known[2]) if start_known is not None else None, many)
         if unit_noise:
             kw["callback"] = stop_when_stationary(prob, lo, hi, colour)
         try:

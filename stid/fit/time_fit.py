@@ -48,6 +48,14 @@ def simulate(model, p: dict, st: Stretch) -> np.ndarray:
     return y if st.fine == 1 else np.ascontiguousarray(y[::st.fine])
 
 
+def simulate_many(model, ps: list, st: Stretch) -> list:
+    """``[simulate(model, p, st) for p in ps]``, in one batch where the model can (Model.simulate_many)."""
+    steer, dt, vx = st.simulation_input()
+    ys = model.simulate_many(ps, steer, dt, vx, sensors=st.sensors) if len(ps) > 1 else \
+        [model.simulate(ps[0], steer, dt, vx, sensors=st.sensors)]
+    return ys if st.fine == 1 else [np.ascontiguousarray(y[::st.fine]) for y in ys]
+
+
 def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: dict | None = None,
              discard_s: float = 0.5, multistart: bool | None = None, space: ParamSpace | None = None,
              method_name: str = "time", reweight: bool = True, sigma=None,
@@ -72,13 +80,19 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     picks = [_as_slice(k) for k in keeps]
 
     def residual(p, sig):
-        # written into one array (hundreds of evaluations per fit): (n, 2) rows of every
-        # stretch's kept samples in turn, each output divided by its sigma
-        out = np.empty((int(ends[-1]) if len(ends) else 0, 2))
+        return residuals([p], sig)[0]
+
+    def residuals(ps, sig):
+        # written into one array each (hundreds of evaluations per fit): (n, 2) rows of every
+        # stretch's kept samples in turn, each output divided by its sigma; the parameter sets
+        # of a Jacobian's columns simulated together, stretch by stretch (Model.simulate_many)
+        outs = [np.empty((int(ends[-1]) if len(ends) else 0, 2)) for _ in ps]
         for st, k, y, a, b in zip(stretches, picks, ys, np.r_[0, ends[:-1]], ends):
-            np.subtract(simulate(model, p, st)[k], y, out=out[a:b])
-        out /= sig
-        return out.ravel()
+            for out, y_sim in zip(outs, simulate_many(model, ps, st)):
+                np.subtract(y_sim[k], y, out=out[a:b])
+        for out in outs:
+            out /= sig
+        return [out.ravel() for out in outs]
 
     if space is None:
         free = [n for n in model.param_names if n not in fixed]
@@ -95,20 +109,24 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
         r_start = residual(starts[0], np.ones(2)).reshape(-1, 2)
         sigma = _levels(r_start)
         res = least_squares(lambda p, s=sigma: residual(p, s), space, starts[:1], unit_noise=True,
+                            many=lambda ps, s=sigma: residuals(ps, s),
                             known=(space.to_x(starts[0]), (r_start / sigma).ravel(), None),
                             colour=_colour(r_start, keeps, stretches[0].dt))
     else:
         # when the weights are refined below, this first solve only has to find them (to a
         # fraction of a percent): a loose tolerance saves most of its iterations, which creep
         # linearly on a model that misses an effect
-        res = least_squares(lambda p, s=sigma: residual(p, s), space, starts, **({"ftol": 1e-4} if reweight else {}))
+        res = least_squares(lambda p, s=sigma: residual(p, s), space, starts, many=lambda ps, s=sigma: residuals(ps, s),
+                            **({"ftol": 1e-4} if reweight else {}))
     if reweight or settle:
         res, sigma, colour = _at_maximum_likelihood(
             res, sigma, space,
             lambda s, known, colour: least_squares(lambda p: residual(p, s), space, [space.to_p(known[0])],
-                                                   unit_noise=True, known=known, colour=colour),
+                                                   unit_noise=True, known=known, colour=colour,
+                                                   many=lambda ps: residuals(ps, s)),
             lambda r: _colour(r, keeps, stretches[0].dt),
-            lambda x, r, colour: _concentrated(lambda p: residual(p, np.ones(2)).reshape(-1, 2), space, x, r,
+            lambda x, r, colour: _concentrated(lambda ps: [f.reshape(-1, 2) for f in residuals(ps, np.ones(2))],
+                                               space, x, r,
                                                colour))
     p_hat = space.to_p(res.x)
     if whiten:
@@ -297,7 +315,8 @@ def _concentrated(unweighted, space: ParamSpace, x0, r0, colour: float):
     outputs' sums of squares is minimised), from ``x0``, in one bounded least-squares solve: the
     residuals of each output times the other's root sum of squares. Where re-weighted solves creep
     along a nearly flat likelihood (the parameters trading one output's fit for the other's), this
-    follows the likelihood itself. ``unweighted(p)``: the residuals (n, 2); ``r0``: theirs at x0.
+    follows the likelihood itself. ``unweighted(ps)``: the residuals (n, 2) of each parameter set;
+    ``r0``: theirs at x0.
     Returns the optimum x, its residuals (n, 2) and the evaluations spent."""
     ss0 = np.maximum(np.sum(r0 * r0, axis=0), 1e-300)
     scale = np.sqrt(2.0 * ss0[0] * ss0[1] / len(r0))  # (fixed: unit-noise-sized residuals at the start)
@@ -306,9 +325,9 @@ def _concentrated(unweighted, space: ParamSpace, x0, r0, colour: float):
         ss = np.sum(r * r, axis=0)
         return np.concatenate([np.sqrt(ss[1]) * r[:, 0], np.sqrt(ss[0]) * r[:, 1]]) / scale
 
-    res = least_squares(lambda p: of(unweighted(p)), space, [space.to_p(x0)], unit_noise=True, colour=colour,
-                        known=(np.asarray(x0, float), of(r0), None))
-    return res.x, unweighted(space.to_p(res.x)), res.nfev + 1
+    res = least_squares(lambda p: of(unweighted([p])[0]), space, [space.to_p(x0)], unit_noise=True, colour=colour,
+                        known=(np.asarray(x0, float), of(r0), None), many=lambda ps: [of(r) for r in unweighted(ps)])
+    return res.x, unweighted([space.to_p(res.x)])[0], res.nfev + 1
 
 
 def _levels_ahead(r: np.ndarray, Ju: np.ndarray, own: np.ndarray) -> np.ndarray:

@@ -184,9 +184,12 @@ def _batched_foh(A, B, dt):
     with np.errstate(all="ignore"):
         try:
             Vinv = np.linalg.inv(V)
-            cond = np.abs(V).sum(axis=1).max(axis=1) * np.abs(Vinv).sum(axis=1).max(axis=1)
-        except np.linalg.LinAlgError:
-            Vinv, cond = None, np.full(L, np.inf)
+        except np.linalg.LinAlgError:  # one singular in the stack: the others keep their closed form
+            Vinv = np.full(V.shape, np.nan, dtype=V.dtype)  # (as a stack of one system alone would)
+            for i in range(L):
+                with contextlib.suppress(np.linalg.LinAlgError):
+                    Vinv[i] = np.linalg.inv(V[i])
+        cond = np.abs(V).sum(axis=1).max(axis=1) * np.abs(Vinv).sum(axis=1).max(axis=1)
     good = np.isfinite(cond) & (cond < 1e8) & np.all(np.abs(lam) * dt > 1e-6, axis=1)
     F = np.empty((L, n, n))
     G1 = np.empty((L, n, m))
@@ -263,31 +266,78 @@ class _NodeFoh:
         self.asked = None  # (first, last) node of every request so far
 
     def at(self, j_first: int, j_last: int):
+        pieces = self.missing(j_first, j_last)
+        if pieces:
+            self.put(pieces, [self._compute(a, b) for a, b in pieces])
+        return self.slice(j_first, j_last)
+
+    def missing(self, j_first: int, j_last: int) -> list:
+        """The node ranges (first, last) a request for j_first .. j_last needs computed (the hint's
+        too, at the first request)."""
         self.asked = (j_first, j_last) if self.asked is None else (min(self.asked[0], j_first),
                                                                    max(self.asked[1], j_last))
         held = self.held
         if held is None:
-            lo, hi = (j_first, j_last) if self.hint is None else (min(self.hint[0], j_first),
-                                                                  max(self.hint[1], j_last))
-            held = (lo, self._compute(lo, hi))
-        else:
+            return [(j_first, j_last) if self.hint is None else (min(self.hint[0], j_first),
+                                                                  max(self.hint[1], j_last))]
+        first, mats = held
+        last = first + len(mats[0]) - 1
+        return [r for r in ((j_first, first - 1), (last + 1, j_last)) if r[0] <= r[1]]
+
+    def put(self, pieces: list, computed: list) -> None:
+        """Take in the matrices ``computed`` at the node ranges ``pieces`` (from ``missing``)."""
+        held = self.held
+        for (a, b), mats_new in sorted(zip(pieces, computed), key=lambda pc: pc[0][0]):
+            if held is None:
+                held = (a, tuple(mats_new))
+                continue
             first, mats = held
             last = first + len(mats[0]) - 1
-            if j_first < first:
-                mats = tuple(np.concatenate([a, b]) for a, b in zip(self._compute(j_first, first - 1), mats))
-                first = j_first
-            if j_last > last:
-                mats = tuple(np.concatenate([a, b]) for a, b in zip(mats, self._compute(last + 1, j_last)))
-            held = (first, mats)
+            if b == first - 1:
+                held = (a, tuple(np.concatenate([x, y]) for x, y in zip(mats_new, mats)))
+            elif a == last + 1:
+                held = (first, tuple(np.concatenate([x, y]) for x, y in zip(mats, mats_new)))
+            elif not (first <= a and b <= last):  # (another thread's put came between: start anew)
+                held = (a, tuple(mats_new))
         self.held = held
-        first, mats = held
+
+    def slice(self, j_first: int, j_last: int):
+        first, mats = self.held
         a = j_first - first
+        if a < 0 or j_last - first >= len(mats[0]):  # (another thread's put came between)
+            return self._compute(j_first, j_last)
         return tuple(m[a:a + j_last - j_first + 1] for m in mats)
 
     def _compute(self, j_first: int, j_last: int):
-        v = np.exp(GRID_STEP * NODE_EVERY * np.arange(j_first, j_last + 1))
-        A, B = self.law.at(v, parts=2)
+        A, B = self.law.at(node_speeds(j_first, j_last), parts=2)
         return _batched_foh(A, B, self.dt)
+
+
+def node_speeds(j_first: int, j_last: int) -> np.ndarray:
+    return np.exp(GRID_STEP * NODE_EVERY * np.arange(j_first, j_last + 1))
+
+
+def _nodes_of_many(node_fohs: list, j_first: int, j_last: int, dt: float) -> list:
+    """``[nf.at(j_first, j_last) for nf in node_fohs]``, with every node any of them lacks
+    discretised in one batch: a Jacobian's columns are as many parameter sets, each with
+    its own A and B, and one batched eigendecomposition costs little more than one."""
+    jobs, seen = [], set()
+    for nf in node_fohs:
+        if id(nf) not in seen:
+            seen.add(id(nf))
+            pieces = nf.missing(j_first, j_last)
+            if pieces:
+                jobs.append((nf, pieces))
+    if jobs:
+        laws = [nf.law.at(node_speeds(a, b), parts=2) for nf, pieces in jobs for a, b in pieces]
+        mats = _batched_foh(np.concatenate([A for A, _ in laws]), np.concatenate([B for _, B in laws]), dt)
+        ends = np.cumsum([len(A) for A, _ in laws])[:-1]
+        per_piece = list(zip(*(np.split(m, ends) for m in mats)))
+        i = 0
+        for nf, pieces in jobs:
+            nf.put(pieces, per_piece[i:i + len(pieces)])
+            i += len(pieces)
+    return [nf.slice(j_first, j_last) for nf in node_fohs]
 
 
 _NODE_FOH: dict = {}  # (dt, the A and B law's coefficients) -> _NodeFoh, newest last
@@ -390,13 +440,34 @@ class LpvSimulator:
         else:  # an effect with another speed law: built at every grid speed and node
             every = [parts(v) for v in grid]
             stacks = [np.stack([e[j] for e in every]) for j in range(5)]
-            at_nodes = [parts(v) for v in np.exp(GRID_STEP * NODE_EVERY * np.arange(j_first, j_last + 1))]
+            at_nodes = [parts(v) for v in node_speeds(j_first, j_last)]
             nodes = _batched_foh(np.stack([e[0] for e in at_nodes]), np.stack([e[1] for e in at_nodes]), dt)
-        self.F, self.G0, self.G1 = ((fill @ M.reshape(len(M), -1)).reshape((len(grid),) + M.shape[1:])
-                                    for M in nodes)
+        F, G0, G1 = ((fill @ M.reshape(len(M), -1)).reshape((len(grid),) + M.shape[1:]) for M in nodes)
+        self._take(stacks, F, G0, G1)
+
+    @classmethod
+    def many(cls, laws: list, vx, dt: float) -> list:
+        """``[LpvSimulator(build, vx, dt, ..., law=law) for law in laws]`` for laws that all hold
+        (``law.ok``) and share their matrices' shapes (one model's parameter sets: a Jacobian's
+        columns): the nodes of all are discretised in one batch, and filled in one product."""
+        grid, idx, w, idx_s, w_s, k_lo = speed_grid(vx)
+        fill, j_first, j_last = _fill(k_lo, len(grid))
+        nodes = _nodes_of_many([_node_foh(law, dt) for law in laws], j_first, j_last, dt)
+        # (S, nodes, n, .) -> one product with the fill for every system
+        F, G0, G1 = ((fill @ M.reshape(M.shape[0], M.shape[1], -1)).reshape((len(laws), len(grid)) + M.shape[2:])
+                     for M in (np.stack(m) for m in zip(*nodes)))
+        sims = []
+        for k, law in enumerate(laws):
+            sim = cls.__new__(cls)
+            sim.idx, sim.w, sim.idx_s, sim.w_s, sim.n_t = idx, w, idx_s, w_s, len(idx)
+            sim._take(law.at(grid), F[k], G0[k], G1[k])
+            sims.append(sim)
+        return sims
+
+    def _take(self, stacks, F, G0, G1) -> None:
         A, B, C, D, off = stacks
         # C-ordered, as the compiled recursion was cached for (another layout compiles anew)
-        self.C, self.D, self.off = (np.ascontiguousarray(a) for a in (C, D, off))
+        self.F, self.G0, self.G1, self.C, self.D, self.off = (np.ascontiguousarray(a) for a in (F, G0, G1, C, D, off))
         # steady state at the first sample's speed for a unit input on each channel
         a0 = self.w[0]
         A0 = (1 - a0) * A[self.idx[0]] + a0 * A[self.idx[0] + 1]

@@ -208,22 +208,29 @@ class Model:
         if v.ndim == 0 or (len(v) and np.ptp(v) == 0.0):
             v0 = float(v) if v.ndim == 0 else float(v[0])
             return self.build(p, v0, sensors, servo_apart).simulator(dt, list(outputs), list(inputs))
-        from stid.models.lpv import LpvSimulator, SpeedLaw, system_parts
+        from stid.models.lpv import LpvSimulator
 
         def build(s):
             return self.build(p, s, sensors, servo_apart)
 
-        # one evaluation simulates the same parameters on every stretch: the speed law
-        # (three builds and a check) is found once for all of them
+        return LpvSimulator(build, v, dt, outputs, inputs, law=self._law(p, outputs, inputs, sensors, servo_apart))
+
+    def _law(self, p: dict, outputs, inputs, sensors, servo_apart: bool):
+        """The speed law of the system ``p`` builds (stid.models.lpv.SpeedLaw). One evaluation
+        simulates the same parameters on every stretch: the law (three builds and a check) is
+        found once for all of them."""
+        from stid.models.lpv import SpeedLaw, system_parts
+
         key = (tuple(sorted(p.items())), tuple(sorted((sensors or {}).items())), tuple(outputs), tuple(inputs),
                servo_apart)
         law = self._laws.get(key)
         if law is None:
-            law = SpeedLaw(system_parts(build, outputs, inputs), check=not self._law_known)
+            law = SpeedLaw(system_parts(lambda s: self.build(p, s, sensors, servo_apart), outputs, inputs),
+                           check=not self._law_known)
             if len(self._laws) >= 8:
                 self._laws.pop(next(iter(self._laws)))
             self._laws[key] = law
-        return LpvSimulator(build, v, dt, outputs, inputs, law=law)
+        return law
 
     def _servo_output(self, p: dict, steer: np.ndarray, dt: float, v: np.ndarray) -> np.ndarray:
         """The servo's output for the logged steer: the linear blocks at the servo's place on
@@ -245,6 +252,45 @@ class Model:
             sim = LpvSimulator(build, v, dt, ["delta"], ["delta"])
         return sim(foh_input(steer), u_out=steer)[:, 0]
 
+    def _steer_chain(self, p: dict, steer, dt: float, v: np.ndarray):
+        """The steer as the rest of the model takes it: through the static maps (exact, on the
+        sampled signal) and the servo's lag where the model runs it apart, in the steering
+        chain's order. Returns it, whether the servo was run apart, and the context at the run's
+        median speed (None where nothing needs it)."""
+        # the context is for the steer maps and the tyre forces only: a linear model without maps
+        # never needs it (the median costs as much as the build)
+        maps = self._servo_maps + self._linkage_maps
+        ctx = self.context(float(np.median(v)) if v.ndim else float(v)) if maps or self.nonlinear else None
+        steer = np.asarray(steer, float)
+        for e in self._servo_maps:
+            steer = np.asarray(e.steer_map(steer, p, ctx), float)
+        apart = bool(self._servo_blocks)
+        if apart:
+            steer = self._servo_output(p, steer, dt, v)
+        for e in self._linkage_maps:
+            steer = np.asarray(e.steer_map(steer, p, ctx), float)
+        return steer, apart, ctx
+
+    def simulate_many(self, ps: list, steer: np.ndarray, dt: float, vx, outputs=MEASURED,
+                      sensors: dict | None = None) -> list:
+        """``[self.simulate(p, steer, dt, vx, outputs, sensors=sensors) for p in ps]``: parameter
+        sets a little apart (a forward-difference Jacobian's columns) on one stretch. A linear
+        model at a measured speed discretises them all in one batch (stid.models.lpv.LpvSimulator.
+        many): a simulation is a few hundred microseconds of Python and numpy calls on small
+        matrices around a compiled recursion of a hundred, and a batch shares most of them."""
+        v = np.asarray(vx, float)
+        if self.nonlinear or len(ps) < 2 or v.ndim == 0 or (len(v) and np.ptp(v) == 0.0):
+            return [self.simulate(p, steer, dt, vx, outputs, sensors=sensors) for p in ps]
+        from stid.models.lpv import LpvSimulator
+
+        outs = list(outputs)
+        chains = [self._steer_chain(p, steer, dt, v) for p in ps]
+        laws = [self._law(p, outs, ["delta"], sensors, apart) for p, (_, apart, _) in zip(ps, chains)]
+        if not all(law.ok for law in laws):  # (a user's effect with another speed law: one by one)
+            return [self.simulate(p, steer, dt, vx, outputs, sensors=sensors) for p in ps]
+        sims = LpvSimulator.many(laws, v, dt)
+        return [sim(foh_input(s), u_out=s) for sim, (s, _, _) in zip(sims, chains)]
+
     def simulate(self, p: dict, steer: np.ndarray, dt: float, vx, outputs=MEASURED,
                  max_iter: int = MAX_ITER, tol: float = 1e-9, sensors: dict | None = None) -> np.ndarray:
         """Measured outputs for a steer history (n_t,): (n_t, len(outputs)).
@@ -263,19 +309,7 @@ class Model:
         steers the optimiser away.
         """
         v = np.asarray(vx, float)
-        # the context at the run's median speed is for the steer maps and the tyre forces only:
-        # a linear model without maps never needs it (the median costs as much as the build)
-        maps = self._servo_maps + self._linkage_maps
-        ctx = self.context(float(np.median(v)) if v.ndim else float(v)) if maps or self.nonlinear else None
-        steer = np.asarray(steer, float)
-        # static steer maps: exact, on the sampled signal, in the steering chain's order
-        for e in self._servo_maps:
-            steer = np.asarray(e.steer_map(steer, p, ctx), float)
-        apart = bool(self._servo_blocks)
-        if apart:
-            steer = self._servo_output(p, steer, dt, v)
-        for e in self._linkage_maps:
-            steer = np.asarray(e.steer_map(steer, p, ctx), float)
+        steer, apart, ctx = self._steer_chain(p, steer, dt, v)
         # the simulators hold the input first-order: the states are driven by samples whose
         # chords carry the band-limited signal (linsys.foh_input); an output that feeds the
         # steer straight through (no sensor filter) takes the sample itself

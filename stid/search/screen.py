@@ -119,12 +119,13 @@ def step_origin(model_name, vehicle, stretches, base) -> StepOrigin:
     sigma = np.asarray(base.extra.get("sigma", np.ones(2)), float)
     m0 = Model(model_name, vehicle)
     p0 = dict(base.all_params())
-    r0 = residuals(m0, p0, stretches, sigma)  # (n, 2)
-    cols = []
+    steps = []
     for n in base.names:
         lo, hi = m0.bounds(n)
-        h = 1e-4 * (abs(p0[n]) if m0.param(n).log else (hi - lo))
-        cols.append((residuals(m0, dict(p0, **{n: p0[n] + h}), stretches, sigma) - r0) / h)
+        steps.append(1e-4 * (abs(p0[n]) if m0.param(n).log else (hi - lo)))
+    r0, *moved = residuals_many(m0, [p0] + [dict(p0, **{n: p0[n] + h}) for n, h in zip(base.names, steps)],
+                                stretches, sigma)  # (n, 2) each
+    cols = [(r - r0) / h for r, h in zip(moved, steps)]
     return StepOrigin(model_name, vehicle, stretches, p0, list(base.names), {o: base.fit[o] for o in OUTS},
                        sigma, r0, cols)
 
@@ -139,14 +140,10 @@ def _step(o: StepOrigin, effect: str, n_eff: float, level: float) -> dict:
     """One candidate's linearised step from ``o`` (see screen_candidates)."""
     from scipy.optimize import lsq_linear
 
-    def resid(model, p):
-        return residuals(model, p, o.stretches, o.sigma)
-
     cls = available_effects()[effect]
     off = offable(effect)
     m = Model(f"{o.model_name}+{effect}", o.vehicle)
     q0 = dict(o.p0, **{q.name: (q.zero if q.zero is not None else q.value("init", o.vehicle)) for q in cls.params})
-    rq = resid(m, q0)
     J, lo_b, hi_b = list(o.cols), [-np.inf] * len(o.cols), [np.inf] * len(o.cols)
     moves = []  # (effect parameter, its off value, the change one unit of its coefficient makes)
     for q in off:  # a coefficient on the change a small step away from the zero makes
@@ -159,10 +156,11 @@ def _step(o: StepOrigin, effect: str, n_eff: float, level: float) -> dict:
             d0 = q.value("init", o.vehicle)
             h = 0.01 * abs(d0) if d0 != 0 else 1e-3 * (hi - lo)
             c_lo, c_hi = (0.0, np.inf) if q.log else sorted(((lo - z) / h, (hi - z) / h))
-        J.append(resid(m, dict(q0, **{q.name: z + h})) - rq)
         moves.append((q.name, z, h))
         lo_b.append(c_lo)
         hi_b.append(c_hi)
+    rq, *moved = residuals_many(m, [q0] + [dict(q0, **{name: z + h}) for name, z, h in moves], o.stretches, o.sigma)
+    J += [r - rq for r in moved]
     A = np.stack([j.ravel() for j in J], axis=1)
     scale = np.maximum(np.linalg.norm(A, axis=0), 1e-300)  # columns of N/rad and metres alike
     step = lsq_linear(A / scale, -rq.ravel(), bounds=(np.array(lo_b) * scale, np.array(hi_b) * scale))
@@ -187,6 +185,16 @@ def residuals(model, p, stretches, sigma, discard_s=0.5) -> np.ndarray:
     from stid.fit.time_fit import _keep, simulate
 
     return np.concatenate([(simulate(model, p, st) - st.y)[_keep(st, discard_s)] / sigma for st in stretches])
+
+
+def residuals_many(model, ps: list, stretches, sigma, discard_s=0.5) -> list:
+    """``[residuals(model, p, stretches, sigma) for p in ps]``, each stretch's simulations in one
+    batch where the model can (Model.simulate_many)."""
+    from stid.fit.time_fit import _keep, simulate_many
+
+    per_stretch = [[(y - st.y)[_keep(st, discard_s)] / sigma for y in simulate_many(model, ps, st)]
+                   for st in stretches]
+    return [np.concatenate(rs) for rs in zip(*per_stretch)]
 
 
 def cost(model, stretches, p, sigma) -> float:
