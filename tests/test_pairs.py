@@ -114,3 +114,23 @@ def test_intervals_after_diagnosis_hold_the_truth_over_seeds(case):
     print(case, "named right", named_right / n, "coverage", rates)
     assert named_right / n >= 0.9, (named_right, n)
     assert all(r >= 0.9 for r in rates.values()), rates
+
+
+def test_a_pair_is_held_to_the_kinematics_as_a_candidate_alone_is(simdir, rc_vehicle, monkeypatch):
+    """A candidate alone is not named when the data's kinematics rule out its sensor offsets
+    (stid.analysis.kinematics); a partner in the pair search was named without that check. Here
+    the check is made to refuse the accelerometer's place: the servo lag and accelerometer offset
+    the demo's runs hide are then not named as a pair, and the pair says why."""
+    from stid.analysis import kinematics
+    from stid.load import load_runs
+    from stid.search import pairs
+    from simdata import random_steer_pair
+
+    monkeypatch.setitem(kinematics.CHECKS, "accel_offset", lambda result, stretches: "the test rules it out")
+    runs = load_runs(random_steer_pair(simdir, ("actuator_lag", "accel_offset")), rc_vehicle)
+    (d,) = diagnose(runs, rc_vehicle, "bicycle")
+    assert "accel_offset" not in d.named, d.named
+    lag = next(c for c in d.candidates if c.effect == "actuator_lag")
+    tried = {t.partner: t for t in lag.pairs.tried}
+    assert tried["accel_offset"].verdict == pairs.RULED_OUT, (tried["accel_offset"].verdict, tried["accel_offset"].why)
+    assert "the test rules it out" in tried["accel_offset"].why

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.special import chdtrc  # chi-square survival function
 
 from stid.analysis.evidence import check_evidence
+from stid.analysis.kinematics import kinematic_veto
 from stid.models.effect import available_effects
 from stid.search.candidate import GAP_FRACTION, MIN_GAIN, OUTS, Candidate, lr_statistic, p_in_words
 from stid.search.candidate_fit import fit_candidate
@@ -33,6 +34,7 @@ from stid.search.screen import linearised_steps, sift
 SCREENED = "screened out"  # the step from the first's fit: within chance, or too small to matter
 NOT_TESTED = "not tested"  # the data cannot test the partner at all (it was skipped in the round)
 NOTHING = "adds nothing"  # the joint fit: no more than chance, or too little, beyond the first
+RULED_OUT = "ruled out"  # the joint fit's sensor offsets (either effect's) are not what the data's kinematics show
 BENT = "first still bent"  # the first's parameter is still not one value with it
 FIRST_HOLDS = "first holds"  # the first's value holds with it, the partner's own does not: no evidence
 NAMED = "named"  # both hold: the pair is named
@@ -151,7 +153,7 @@ def search_pairs(model_name, top, others, vehicle, stretches, n_eff, floor, pool
             continue
         if progress:
             progress.step(f"checking {top.effect} with {p.effect}")
-        t = _judge(top, p.effect, joint.result(i), n_eff, gap)
+        t = _judge(top, p.effect, joint.result(i), n_eff, gap, stretches)
         search.tried.append(t)
         if t.verdict:
             continue
@@ -170,9 +172,10 @@ def search_pairs(model_name, top, others, vehicle, stretches, n_eff, floor, pool
     return search
 
 
-def _judge(top, partner: str, both, n_eff, gap) -> PairTry:
-    """The partner's chance and size tests in the joint fit, against ``top`` alone (the rules a
-    candidate meets in a round of its own); an empty verdict when it passes them."""
+def _judge(top, partner: str, both, n_eff, gap, stretches) -> PairTry:
+    """The partner's chance and size tests in the joint fit, against ``top`` alone, and the
+    kinematics' check of both effects as fitted jointly (the rules a candidate meets in a round
+    of its own); an empty verdict when it passes them."""
     k2 = len(available_effects()[partner].params)
     lr = max(lr_statistic(top.result, both, n_eff), 0.0) if n_eff is not None else 0.0
     t = PairTry(partner, "", result=both, lr=lr, p_value=float(chdtrc(k2, lr)),
@@ -186,6 +189,10 @@ def _judge(top, partner: str, both, n_eff, gap) -> PairTry:
     elif not any(t.gain[o] >= need[o] for o in OUTS):
         t.verdict, t.why = NOTHING, ("adds too little to " + top.effect + ": "
                                      + ", ".join(f"{o} {t.gain[o]:+.2f}" for o in OUTS) + " fit points")
+    else:  # a sensor offset the data's own kinematics rule out is no finding, in a pair as alone
+        veto = next(((e, v) for e in (partner, top.effect) if (v := kinematic_veto(e, both, stretches))), None)
+        if veto is not None:
+            t.verdict, t.why = RULED_OUT, f"{veto[0]} as fitted with it: {veto[1]}"
     return t
 
 
