@@ -63,6 +63,13 @@ def _cmd_fit(args) -> int:
         res = fit(runs, vehicle, args.model, args.method)
         prog.step("the noise floor")
         judged, floor, floor_se = _judge(res, args.model, vehicle, judged_on, held, floor)
+    import math
+
+    from stid.analysis.noise_floor import above_floor, below_floor, below_floor_small, floor_words, \
+        gyro_zero_allowance
+
+    # (a solver that stopped short is said so, below_floor's words: not a small effect)
+    small = below_floor_small(judged, floor, floor_se, gyro_zero_allowance(judged, judged_on)) if res.converged else {}
     if args.json:
         doc = res.to_json()
         if held:
@@ -70,11 +77,16 @@ def _cmd_fit(args) -> int:
         doc["noise_floor"] = {k: round(v, 2) for k, v in floor.items()}
         doc["noise_floor_stderr"] = {k: round(v, 3) for k, v in floor_se.items()}
         # (fit points short of the floor: when not empty, the intervals assume a model that is not right)
-        from stid.analysis.noise_floor import below_floor
-
         doc["below_floor"] = below_floor(judged, floor, floor_se)
+        doc["below_floor_small"] = small  # (beyond chance, under below_floor's 2 points)
+        doc["above_floor"] = above_floor(judged.fit, floor, floor_se)
         if doc["below_floor"]:  # (a script that reads the warnings hears it too)
             doc.setdefault("warnings", []).append(_below_floor_words(doc["below_floor"], res.converged, args))
+        if small:
+            doc.setdefault("notes", []).append(_small_gap_words(small, args))
+        if not all(math.isfinite(v) for v in floor.values()):  # (why there is none, as the text says)
+            doc.setdefault("notes", []).append(floor_words({o: v for o, v in floor.items() if not math.isfinite(v)},
+                                                           floor_se))
         print(_json(doc))
     else:
         print(res.table())
@@ -82,7 +94,20 @@ def _cmd_fit(args) -> int:
             print(f"  judged on {', '.join(r.name for r in held)} (not fitted to): "
                   + "   ".join(f"{k} {v:.1f}%" for k, v in judged.fit.items()))
         print(_floor_line(judged, floor, floor_se, args))
+        if small:
+            print("  " + _small_gap_words(small, args))
     return 0
+
+
+def _small_gap_words(small: dict, args) -> str:
+    """What a fit a little below the noise floor, by more than chance (``small``: fit points), means."""
+    import shlex
+
+    gap = ", ".join(f"{o} {g:.1f} points" for o, g in small.items())
+    cmd = shlex.join(["stid", "diagnose", *args.runs, "--vehicle", args.vehicle, "--model", args.model])
+    return (f"this model is a little below the noise floor ({gap}: more than chance, under the 2 points that call "
+            f"it far below): a small effect may be missing, such as an accelerometer a few cm off the CG; "
+            f"diagnose looks for it: {cmd}")
 
 
 def _validation_runs(args, vehicle, fitted):

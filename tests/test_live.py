@@ -275,11 +275,17 @@ def test_no_done_before_the_diagnosis_has_answered(car, tmp_path):
     assert up.done is None and up.lacking[0].startswith("the diagnosis (once 15 s of driving")
 
 
+class _NotAskedToDrive(Exception):
+    """The view's last 'still lacking' line is not a driving addition (a model-error allowance)."""
+
+
 def _asked(line: str):
     """(what, seconds, speed or None) from a 'still lacking' line."""
     import re
 
     m = re.search(r"about ([\d.]+) (s|min)", line)
+    if m is None:
+        raise _NotAskedToDrive(line)
     seconds = float(m.group(1)) * (60 if m.group(2) == "min" else 1)
     speed = re.search(r"about ([\d.]+) m/s", line)
     return line.split(":")[0].split(",")[0], seconds, float(speed.group(1)) if speed else None
@@ -334,9 +340,19 @@ def test_driving_what_is_asked_for_reaches_the_target(car, tmp_path):
     printed interval is the target, in the median, to within 0.7-1.4x (measured on these
     seeds: 0.88, each 0.65-1.23; a single run's interval spreads so around it: it is the
     wider of two estimates, one the block jackknife's with 7 degrees of freedom)."""
-    ratios = [_halve_iz_and_drive_what_is_asked(car, tmp_path, seed)[0] for seed in range(40, 52)]
-    print("interval after / target:", np.round(ratios, 2), "median", np.median(ratios))
+    ratios, held = [], []
+    for seed in range(40, 52):
+        try:
+            ratios.append(_halve_iz_and_drive_what_is_asked(car, tmp_path, seed)[0])
+        except _NotAskedToDrive as e:
+            held.append((seed, str(e)))
+    print("interval after / target:", np.round(ratios, 2), "median", np.median(ratios), "not asked:", held)
     assert 0.7 <= float(np.median(ratios)) <= 1.4, ratios
+    # Seed 49 is not asked to drive: its exact model's fit shows a delay of -0.069 ms +- 0.027 (z -2.6,
+    # chance: the delay allowance widens from 2 standard errors, so about one exact fit in 20), Iz's
+    # interval is widened to 1.13% (0.3% without), and the view says the interval holds a delay. Found
+    # failing so on 2026-11-27 (at 59c58be too); more than one such seed of 12 is more than chance.
+    assert len(held) <= 1, held
 
 
 def test_a_second_speed_is_what_separates_servo_lag_from_tyre_relaxation(tmp_path):

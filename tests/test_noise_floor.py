@@ -102,3 +102,39 @@ def test_short_runs_with_slow_coloured_noise_leave_the_right_model_at_its_floor(
     mean = np.mean(gaps, axis=0)
     assert np.all(np.abs(mean) < 0.5), (mean, gaps)
     assert not any(told), told
+
+
+def test_a_fit_a_little_below_the_floor_beyond_chance_is_told_a_small_effect_may_be_missing(tmp_path):
+    """An accelerometer off the CG (plain physics: ay + x r') leaves the bicycle 1-2 points below the
+    floor, many of the floor's standard errors: a trial's `stid fit` said nothing there in 28 of 40
+    runs (its warning starts at 2 points), while diagnose named the offset to the millimetre. Now the
+    fit says a small effect may be missing and points to diagnose; the right model, on the same run
+    without the offset, is not told so. The JSON carries both gaps and the floor's above. (On this
+    9 kg car 10 cm ahead gives 1.1 points at 20 standard errors; 5 cm, none: the bicycle takes it up.)"""
+    import json
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from test_track_runs import A, B, M, bicycle_run, write_csv
+
+    car = tmp_path / "car.toml"
+    car.write_text(f'name = "test car"\nmass = {M}\na = {A}\nb = {B}\n[sensors]\naccel_bandwidth_hz = 0\n'
+                   'gyro_bandwidth_hz = 0\n')
+    run = bicycle_run(lambda t: np.full_like(t, 4.0), T=40.0, seed=5)
+    rng = np.random.default_rng(5)
+    noise = {o: 0.04 * np.std(run[o]) * rng.standard_normal(len(run["t"])) for o in ("ay", "r")}
+    docs = {}
+    for name, x_acc in (("right", 0.0), ("offset", 0.10)):
+        cols = dict(run, ay=run["ay"] + x_acc * np.gradient(run["r"], run["t"]) + noise["ay"], r=run["r"] + noise["r"])
+        write_csv(tmp_path / f"{name}.csv", cols)
+        out = subprocess.run([sys.executable, "-m", "stid.cli", "fit", str(tmp_path / f"{name}.csv"), "--vehicle",
+                              str(car), "--json"], capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        docs[name] = json.loads(out.stdout)
+    right, offset = docs["right"], docs["offset"]
+    assert right["below_floor"] == right["below_floor_small"] == right["above_floor"] == {}, right
+    assert not right["below_floor"] and "ay" in offset["below_floor_small"], offset["below_floor_small"]
+    assert 0.5 < offset["below_floor_small"]["ay"] <= 2.0
+    assert any("a small effect may be missing" in n and "stid diagnose" in n for n in offset["notes"]), offset["notes"]
