@@ -182,14 +182,12 @@ def _step(o: StepOrigin, effect: str, n_eff: float, level: float) -> dict:
 def residuals(model, p, stretches, sigma, discard_s=0.5) -> np.ndarray:
     """The time-domain fit's residuals (n, 2) over the kept samples of every stretch,
     each output divided by its ``sigma``: what the screen steps on and a start is judged by."""
-    from stid.fit.time_fit import _keep, simulate
-
-    return np.concatenate([(simulate(model, p, st) - st.y)[_keep(st, discard_s)] / sigma for st in stretches])
+    return residuals_many(model, [p], stretches, sigma, discard_s)[0]
 
 
 def residuals_many(model, ps: list, stretches, sigma, discard_s=0.5) -> list:
     """``[residuals(model, p, stretches, sigma) for p in ps]``, each stretch's simulations in one
-    batch where the model can (Model.simulate_many)."""
+    batch where the model can (Model.simulate_many; one parameter set: Model.simulate)."""
     from stid.fit.time_fit import _keep, simulate_many
 
     per_stretch = [[(y - st.y)[_keep(st, discard_s)] / sigma for y in simulate_many(model, ps, st)]
