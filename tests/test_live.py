@@ -897,3 +897,17 @@ def test_a_delay_that_holds_an_interval_is_said_with_how_often_chance_shows_it(c
     m = re.search(r"the outputs 0\.069 ms early at 2\.6 standard errors, which chance gives in about 1 fit of (\d+)", line)
     assert m and 80 <= int(m.group(1)) <= 130, line  # (two-sided, z 2.6: 1 in ~100)
     assert "if it is real, more data do not shrink it" in line, line
+
+
+def test_a_delay_far_beyond_chance_is_said_so_without_an_infinite_count():
+    """A servo's lag seen at 44 standard errors: chance never gives it (the count of fits was
+    1 / 0, an OverflowError that ended the live view in the suite's browser test)."""
+    from types import SimpleNamespace
+
+    from stid.live.lacks import _delay_seen
+
+    words, chance = _delay_seen(SimpleNamespace(extra={"delay_seen_ms": (16.0, 0.36)}))
+    assert "the outputs 16 ms late at 44.4 standard errors, far beyond what chance gives" in words and not chance
+    words, chance = _delay_seen(SimpleNamespace(extra={"delay_seen_ms": (-0.069, 0.0268)}))
+    assert "early at 2.6 standard errors, which chance gives in about 1 fit of" in words and chance
+    assert _delay_seen(SimpleNamespace(extra={})) == ("", True)

@@ -89,27 +89,32 @@ def _stuck_on_model_error(res, short) -> list[str]:
                    "out, which more data do not shrink: steer less (smaller angles), or accept the wider target")
     late = _held_by_allowance(res, short, "delay_allowance") - held
     if late:
+        seen, chance = _delay_seen(res)
         out.append(f"{', '.join(sorted(late))}: the interval holds a delay between the steer and the outputs that the "
-                   f"model leaves out{_delay_seen(res)} (a servo's lag or dead time, a sensor's delay, or an "
-                   "accelerometer off the CG, whose yaw-acceleration term reads as ay late or early); if it is real, "
-                   "more data do not shrink it: watch a model with it (the diagnosis names which)")
+                   f"model leaves out{seen} (a servo's lag or dead time, a sensor's delay, or an accelerometer off the "
+                   "CG, whose yaw-acceleration term reads as ay late or early); "
+                   + ("if it is real, more data do not shrink it" if chance else "more data do not shrink it")
+                   + ": watch a model with it (the diagnosis names which)")
     return out
 
 
-def _delay_seen(res) -> str:
+def _delay_seen(res) -> tuple[str, bool]:
     """The delay the fit sees, its size against its standard error, and how often chance shows
     one that far out: the interval widens for a delay from 2 standard errors, so an exact model
     meets it by chance in about one fit of 20 (a plain-physics run in the suite: 0.07 ms at 2.6
     standard errors widened Iz's interval from 0.3% to 1.1%). A delay that is chance fades as the
-    data grow; a real one stays."""
+    data grow; a real one stays. Returns the words and whether chance may have made it."""
     seen = res.extra.get("delay_seen_ms") if getattr(res, "extra", None) else None
     if not seen or not np.isfinite(seen[0]) or not seen[1] > 0:
-        return ""
+        return "", True
     from scipy.special import ndtr
 
     z = abs(seen[0]) / seen[1]
-    return (f", the outputs {abs(seen[0]):.2g} ms {'late' if seen[0] > 0 else 'early'} at {z:.1f} standard errors, which "
-            f"chance gives in about 1 fit of {max(1, round(1 / (2 * ndtr(-z)))):.0f}")
+    p = 2.0 * float(ndtr(-z))  # two-sided
+    chance = (f"which chance gives in about 1 fit of {max(1, round(1 / p))}" if p > 1e-6 else
+              "far beyond what chance gives")  # (a servo's lag: z in the tens or hundreds, p 0)
+    return (f", the outputs {abs(seen[0]):.2g} ms {'late' if seen[0] > 0 else 'early'} at {z:.1f} standard errors, "
+            f"{chance}", p > 1e-6)
 
 
 def summary(runs, res) -> dict:
