@@ -344,8 +344,11 @@ def _csv_gyro_zero(run) -> None:
         return
     still_s = zero["still_s"]
     run.r = run.r - bias
-    notes.append(f"gyro zero {bias:+.4f} rad/s ({np.degrees(bias):+.2f} deg/s), the mean of r over {still_s:.1f} s "
-                 "standing still, taken off r")
+    # (the seconds used and the zero's own error said where a driver reads them: a trial user's 3 s stand-still
+    # gave 1.8 s, and asked why; the error is what the floor's comparison in r allows for)
+    notes.append(f"gyro zero {bias:+.4f} rad/s ({np.degrees(bias):+.2f} deg/s) +- {np.degrees(zero['stderr']):.2f} "
+                 f"deg/s, the mean of r over {still_s:.1f} s standing still (not counting the last "
+                 f"{convert.START_LOOKBACK_S:g} s before it drives off, which a wheel sensor may not see), taken off r")
 
 
 def _check_units(path, cols):
