@@ -66,10 +66,10 @@ def _cmd_fit(args) -> int:
     import math
 
     from stid.analysis.noise_floor import above_floor, below_floor, below_floor_small, floor_words, \
-        gyro_zero_allowance
+        gyro_zero_points
 
     # (a solver that stopped short is said so, below_floor's words: not a small effect)
-    small = below_floor_small(judged, floor, floor_se, gyro_zero_allowance(judged, judged_on)) if res.converged else {}
+    small = below_floor_small(judged, floor, floor_se, gyro_zero_points(judged, judged_on)) if res.converged else {}
     if args.json:
         doc = res.to_json()
         if held:
@@ -101,13 +101,17 @@ def _cmd_fit(args) -> int:
 
 def _small_gap_words(small: dict, args) -> str:
     """What a fit a little below the noise floor, by more than chance (``small``: fit points), means."""
-    import shlex
-
     gap = ", ".join(f"{o} {g:.1f} points" for o, g in small.items())
-    cmd = shlex.join(["stid", "diagnose", *args.runs, "--vehicle", args.vehicle, "--model", args.model])
     return (f"this model is a little below the noise floor ({gap}: more than chance, under the 2 points that call "
             f"it far below): a small effect may be missing, such as an accelerometer a few cm off the CG; "
-            f"diagnose looks for it: {cmd}")
+            f"diagnose looks for it: {_diagnose_command(args)}")
+
+
+def _diagnose_command(args) -> str:
+    """The `stid diagnose` command for a fit's own runs, vehicle and model, ready to paste."""
+    import shlex
+
+    return shlex.join(["stid", "diagnose", *args.runs, "--vehicle", args.vehicle, "--model", args.model])
 
 
 def _validation_runs(args, vehicle, fitted):
@@ -201,12 +205,9 @@ def _below_floor_words(short: dict, converged: bool, args) -> str:
     if not converged:
         return f"this fit is far below the noise floor ({gap}) because the solver did not converge, not because " \
                "the model must lack something"
-    import shlex
-
-    cmd = shlex.join(["stid", "diagnose", *args.runs, "--vehicle", args.vehicle, "--model", args.model])
     return (f"this model is far below the noise floor ({gap}): something is missing, and its intervals hold only "
             "if the model were right (a model that misses an effect bends its parameters to make up for it, by "
-            "more than the intervals show). See what: " + cmd)
+            "more than the intervals show). See what: " + _diagnose_command(args))
 
 
 def _vehicle_and_runs(args, chain_warning: bool = False):

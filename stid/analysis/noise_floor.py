@@ -312,7 +312,7 @@ def below_floor(res, floor, se) -> dict:
             if o in res.fit and np.isfinite(floor[o]) and floor[o] - res.fit[o] > max(2.0, 2.576 * se.get(o, 0.0))}
 
 
-def gyro_zero_allowance(res, stretches, z: float = 3.0) -> dict:
+def gyro_zero_points(res, stretches, z: float = 3.0) -> dict:
     """Fit points of r a right model may sit below the floor because of the gyro zero taken off r at
     load ({} where none was): the floor's predictor has a constant, the model has none, so the
     zero's own error (``z`` of its standard errors, the kinematics' rule 3 allowance without the
@@ -339,7 +339,7 @@ SMALL_GAP = 0.5  # fit points: a gap smaller than this is not worth a sentence (
 
 def below_floor_small(res, floor, se, allowance: dict | None = None) -> dict:
     """Per output, fit points short of the floor that are more than chance (2.576 standard errors of
-    the floor, plus ``allowance``: what a known error outside the model costs it, gyro_zero_allowance)
+    the floor, plus ``allowance``: what a known error outside the model costs it, gyro_zero_points)
     and half a point, but not far (below_floor's 2 points): a small effect may be missing, which
     ``stid diagnose`` looks for. A trial's accelerometer 5 cm ahead of the CG left the bicycle 1.0-1.9
     points below the floor in ay at 4-65 standard errors, and `stid fit` said nothing in 28 of 40 runs

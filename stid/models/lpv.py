@@ -266,10 +266,7 @@ class _NodeFoh:
         self.asked = None  # (first, last) node of every request so far
 
     def at(self, j_first: int, j_last: int):
-        pieces = self.missing(j_first, j_last)
-        if pieces:
-            self.put(pieces, [self._compute(a, b) for a, b in pieces])
-        return self.slice(j_first, j_last)
+        return _nodes_of_many([self], j_first, j_last, self.dt)[0]
 
     def missing(self, j_first: int, j_last: int) -> list:
         """The node ranges (first, last) a request for j_first .. j_last needs computed (the hint's
