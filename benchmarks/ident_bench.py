@@ -28,7 +28,7 @@ def make_runs(d: Path, effects=(), seeds=(1, 2), duration=40.0, steer_amp=0.04,
     speed target moves by +-25% every 2-5 s (hil_sim.manoeuvres.Plan)."""
     paths = []
     for seed, speed in zip(seeds, (4.0, 6.0)):
-        tag = "" if speed_profile == "constant" else f"_{speed_profile}"
+        tag = ("" if speed_profile == "constant" else f"_{speed_profile}") + ("" if duration == 40.0 else f"_{duration:g}s")
         p = d / f"rs_{'+'.join(effects) or 'clean'}{tag}_{seed}_{steer_amp:g}.mcap"
         if not p.exists():
             record(SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp,
@@ -144,25 +144,21 @@ def diagnose_time(d: Path, quick: bool) -> dict:
 
 
 def scaling(d: Path, quick: bool) -> dict:
-    """Fit and diagnose time as the data grow (the runs tiled end to end) and as candidates grow."""
+    """Fit and diagnose time as the data grow (runs k times as long, as the simulated car records
+    them: one random steer through each, not the 40 s runs tiled, whose copies a fit's sample of
+    the record would stand for exactly) and as candidates grow."""
     from stid.diagnose import diagnose
     from stid.fit import dataset
     from stid.fit.fitting import fit
     from stid.load import load_runs
     from stid.models.effect import available_effects
-    from stid.run import Run
     from stid.vehicle_file import load_vehicle
 
     v = load_vehicle(VEHICLE)
     base = load_runs(make_runs(d, ("actuator_lag",)), v)
     out = {"length": [], "candidates": []}
     for k in ((1, 2) if quick else (1, 4, 16)):
-        runs = []
-        for r in base:
-            n = len(r.t)
-            tile = lambda x: None if x is None else np.tile(x, k)  # noqa: E731
-            runs.append(Run(r.name, np.arange(n * k) * r.dt, tile(r.steer), tile(r.ay), tile(r.r), tile(r.vx),
-                            tile(r.ax), None, {}, dict(r.meta)))
+        runs = load_runs(make_runs(d, ("actuator_lag",), duration=40.0 * k), v)
         # best of several at every length, most where a fit is shortest: one fit of the x1 runs
         # takes 0.15-0.35 s, and a single sample of it (the ratios' denominator) moved the x16 ratio
         # between x16 and x29 from bench to bench
