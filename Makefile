@@ -8,6 +8,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
 MP31 := tests/mp31
+RECURSION := stid/models/_ltv_recursion.so
 MP31_STAMP := $(MP31)/node_modules/.installed-stamp
 
 .PHONY: demo test bench venv bytecode mp31 vectors c-test clean
@@ -24,8 +25,15 @@ venv: $(STAMP)
 # one): where PYTHONDONTWRITEBYTECODE is set, as in many container images, Python never writes
 # them, and every command compiled them anew (0.08 s of each; the suite starts hundreds). Only
 # what changed is compiled again.
-bytecode: $(STAMP)
+bytecode: $(STAMP) $(RECURSION)
 	@$(BIN)/python -m compileall -q stid host hil_sim benchmarks
+
+# the LPV simulation's loop compiled ahead (stid/models/recursion.py): a command then starts without
+# importing numba (0.18 s of every cold one). Without a C compiler numba runs the same loop, and
+# only the start is slower; so a failed build is a note, not an error (make tries again next time).
+$(RECURSION): stid/models/ltv_recursion.c
+	@$(CC) -O3 -fPIC -shared -o $@ $< || \
+		echo "note: no C compiler ($(CC)) built $@: numba compiles the same loop (commands start 0.2 s slower)"
 
 $(MP31_STAMP): $(MP31)/package.json $(MP31)/package-lock.json
 	@if command -v npm >/dev/null 2>&1; then \
@@ -56,4 +64,4 @@ vectors: $(STAMP)
 	$(BIN)/python firmware/vectors/make_vectors.py
 
 clean:
-	rm -rf $(VENV) $(MP31)/node_modules firmware/c/build out demo_out .pytest_cache
+	rm -rf $(VENV) $(MP31)/node_modules firmware/c/build out demo_out .pytest_cache $(RECURSION)

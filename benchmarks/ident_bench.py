@@ -11,8 +11,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from benchmarks.study_method import fit_study
 from hil_sim.manoeuvres import Plan
 from hil_sim.record import record

@@ -106,7 +106,7 @@ def fingerprint() -> str:
         for root, dirs, files in os.walk(top):
             dirs[:] = sorted(d for d in dirs if d != "__pycache__")
             for f in sorted(files):
-                if f.endswith((".py", ".html", ".toml")):
+                if f.endswith((".py", ".html", ".toml", ".so")):
                     p = os.path.join(root, f)
                     h.update(f"{p}:{os.stat(p).st_mtime_ns}".encode())
     return h.hexdigest()[:16]
@@ -367,9 +367,9 @@ def _preload() -> None:
 
     for name in PRELOAD:
         importlib.import_module(name)
-    from stid.models.lpv import load_compiled
+    from stid.models import recursion
 
-    load_compiled()
+    recursion.load()
     # what the server holds now is never freed: frozen, the runners' garbage collections skip it
     # (and so do not touch, and copy, its memory pages)
     gc.freeze()

@@ -72,7 +72,7 @@ def swinging(t):
 _LEAN_LOAD_SCRIPT = r"""
 import json, numpy as np
 from numba import njit
-from stid.models import lpv
+from stid.models import _ltv_numba as lpv
 lpv.load_compiled()
 ctx = lpv._ltv_run.targetctx
 rng = np.random.default_rng(0)
@@ -101,7 +101,7 @@ print(json.dumps({"diff": float(np.max(np.abs(compiled - plain))), "left": "refr
 
 
 def test_the_compiled_recursion_loads_without_the_whole_compiler_and_numba_still_compiles():
-    """stid.models.lpv.load_compiled cuts numba's refresh before a cache lookup to the
+    """stid.models._ltv_numba.load_compiled (numba's build of the recursion) cuts numba's refresh before a cache lookup to the
     runtime's start: in a fresh process (twice: the first may compile and fill the cache,
     the second loads from it) the recursion equals the dense one written out here, the cut
     refresh is gone afterwards, and numba compiles a new function as usual."""

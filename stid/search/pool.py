@@ -20,10 +20,10 @@ def worker_pool():
     beside each other. Forked after the compiled simulator and the effect catalogue are
     loaded, so the workers share them instead of each loading them (the catalogue's modules
     cost each worker 10-20 ms at its first job)."""
-    from stid.models.lpv import load_compiled
+    from stid.models import recursion
 
     def before_fork():
-        load_compiled()
+        recursion.load()
         available_effects()
 
     return workers.worker_pool(WORKERS, before_fork=before_fork)
