@@ -52,8 +52,10 @@ def _builds():
     return {"c": c, "numba": recursion.numba_recursion()}
 
 
-@pytest.mark.parametrize("shape", [(2, 1, 1, 1, 1), (5, 2, 1, 2, 300), (12, 4, 3, 2, 500), (7, 6, 3, 3, 200),
-                                   (3, 9, 1, 2, 50)])
+# (grid nodes, states, inputs, outputs, samples): sizes the C build has as constants (1-9 states with
+# the steer in and ay, r out; 5 with the tyre's force corrections in and the slip angles out) and others
+@pytest.mark.parametrize("shape", [(2, 1, 1, 1, 1), (5, 2, 1, 2, 300), (3, 9, 1, 2, 50), (6, 5, 3, 4, 100),
+                                   (12, 4, 3, 2, 500), (7, 6, 3, 3, 200), (4, 12, 1, 2, 60)])
 def test_both_builds_of_the_recursion_are_the_recursion_written_out(shape):
     rng = np.random.default_rng(sum(shape))
     args = _system(rng, *shape)
