@@ -33,7 +33,7 @@ bytecode: $(STAMP) $(RECURSION)
 # only the start is slower; so a failed build is a note, not an error (make tries again next time).
 $(RECURSION): stid/models/ltv_recursion.c
 	@$(CC) -O3 -fPIC -shared -o $@ $< || \
-		echo "note: no C compiler ($(CC)) built $@: numba compiles the same loop (commands start 0.2 s slower)"
+		echo "note: the C compiler ($(CC)) did not build $@: numba compiles the same loop (commands start 0.2 s slower)"
 
 $(MP31_STAMP): $(MP31)/package.json $(MP31)/package-lock.json
 	@if command -v npm >/dev/null 2>&1; then \

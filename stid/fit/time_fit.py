@@ -57,8 +57,8 @@ def simulate_many(model, ps: list, st: Stretch) -> list:
     return ys if st.fine == 1 else [np.ascontiguousarray(y[::st.fine]) for y in ys]
 
 
-# A long record is fitted in two steps: a sample of it first (COARSE_S of driving in pieces of
-# PIECE_S, one from each of as many stretches of the record's time), then the whole from that
+# A long record (its stretches together: every run of the fit) is fitted in two steps: a sample of
+# it first (COARSE_S of driving in pieces of PIECE_S, one from each of as many stretches of the record's time), then the whole from that
 # sample's answer. Near the optimum of a model that misses an effect the solver closes in only
 # linearly (its residuals are large), and the step still to go must fall below a tenth of a
 # standard error (convergence.STEP_SE_STOP), which shrinks as the record grows: so a record 16
@@ -113,8 +113,13 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
             except InputError:  # (a sample a fit cannot start from: the whole is fitted from the start)
                 rough = None
             if rough is not None and np.all(np.isfinite(rough.values)):
-                return fit_time(model, stretches, fixed, rough.all_params(), discard_s, False, space, method_name,
-                                whiten=whiten, intervals=intervals, settle=True)
+                whole = fit_time(model, stretches, fixed, rough.all_params(), discard_s, False, space, method_name,
+                                 whiten=whiten, intervals=intervals, settle=True)
+                # (the solver's words count the whole record's evaluations: where the rest were spent)
+                seconds = sum(len(st.t) * st.dt for st in sample)
+                whole.status += (f"; started where a fit of a {seconds:.0f} s sample of the record ended "
+                                 f"({rough.extra['evaluations']} evaluations on it)")
+                return whole
     warnings = check_excitation(stretches)
     keeps = [_keep(s, discard_s) for s in stretches]
     ys = [s.y[k] for s, k in zip(stretches, keeps)]
@@ -257,6 +262,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
 
     result = make_result(model, method_name, space, p_hat, cov, preds, sigma)
     result.set_verdict(verdict)
+    result.extra["evaluations"] = int(res.nfev)
     result.extra["sigma"] = np.asarray(sigma, float)
     result.interval = interval_note
     if widened:
