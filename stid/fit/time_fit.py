@@ -58,12 +58,12 @@ def simulate_many(model, ps: list, st: Stretch) -> list:
 
 
 # A long record (its stretches together: every run of the fit) is fitted in two steps: a sample of
-# it first (COARSE_S of driving in pieces of PIECE_S, one from each of as many stretches of the record's time), then the whole from that
-# sample's answer. Near the optimum of a model that misses an effect the solver closes in only
-# linearly (its residuals are large), and the step still to go must fall below a tenth of a
+# it first (COARSE_S of driving in pieces of PIECE_S drawn across it: coarse_sample), then the whole
+# from that sample's answer. Near the optimum of a model that misses an effect the solver closes in
+# only linearly (its residuals are large), and the step still to go must fall below a tenth of a
 # standard error (convergence.STEP_SE_STOP), which shrinks as the record grows: so a record 16
-# times as long took 1.4 times the evaluations of the whole data (bench: 22 Jacobians where 16 did),
-# and a model with effects three starts of them. From the sample's answer the whole takes a few.
+# times as long took 1.4 times the evaluations on the whole of it (the bench's 40 s runs tiled 16
+# times: 22 Jacobians where they took 16), and a model with effects three starts of them. From the sample's answer the whole takes a few.
 # The answer is the whole record's optimum by the same rule either way (a sample only moves where
 # the solve starts).
 COARSE_S = 80.0  # s: a sample as long as the two 40 s runs a fit is made for
