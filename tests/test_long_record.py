@@ -101,7 +101,7 @@ def test_a_long_record_fitted_from_a_sample_reaches_the_same_optimum_for_fewer_s
     assert np.all(apart < 0.5), (apart, whole.params(), sampled.params())
     assert n_sampled < share * n_whole, (n_sampled, n_whole)
     # the solver's words say where the evaluations went (they count the whole record's only)
-    assert "started where a fit of a" in sampled.status and "sample" not in whole.status, sampled.status
+    assert "started where the fit of a sample" in sampled.status and "sample" not in whole.status, sampled.status
     if model_name != "bicycle":  # the right model finds the car (to 0.1-0.4% here, both ways)
         truth = {"Cf": CF, "Cr": CR, "Iz": IZ, "tau_steer": LAG_S}
         for name, value in sampled.params().items():

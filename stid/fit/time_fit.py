@@ -63,7 +63,8 @@ def simulate_many(model, ps: list, st: Stretch) -> list:
 # only linearly (its residuals are large), and the step still to go must fall below a tenth of a
 # standard error (convergence.STEP_SE_STOP), which shrinks as the record grows: so a record 16
 # times as long took 1.4 times the evaluations on the whole of it (the bench's 40 s runs tiled 16
-# times: 22 Jacobians where they took 16), and a model with effects three starts of them. From the sample's answer the whole takes a few.
+# times: 22 Jacobians where they took 16), and a model with effects three starts of them. From the
+# sample's answer the whole takes a few.
 # The answer is the whole record's optimum by the same rule either way (a sample only moves where
 # the solve starts).
 COARSE_S = 80.0  # s: a sample as long as the two 40 s runs a fit is made for
@@ -117,7 +118,7 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
                                  whiten=whiten, intervals=intervals, settle=True)
                 # (the solver's words count the whole record's evaluations: where the rest were spent)
                 seconds = sum(len(st.t) * st.dt for st in sample)
-                whole.status += (f"; started where a fit of a {seconds:.0f} s sample of the record ended "
+                whole.status += (f"; started where the fit of a sample of the record ({seconds:.0f} s of it) ended "
                                  f"({rough.extra['evaluations']} evaluations on it)")
                 return whole
     warnings = check_excitation(stretches)
