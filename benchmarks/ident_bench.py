@@ -26,7 +26,8 @@ def make_runs(d: Path, effects=(), seeds=(1, 2), duration=40.0, steer_amp=0.04,
     speed target moves by +-25% every 2-5 s (hil_sim.manoeuvres.Plan)."""
     paths = []
     for seed, speed in zip(seeds, (4.0, 6.0)):
-        tag = ("" if speed_profile == "constant" else f"_{speed_profile}") + ("" if duration == 40.0 else f"_{duration:g}s")
+        tag = "" if speed_profile == "constant" else f"_{speed_profile}"
+        tag += "" if duration == 40.0 else f"_{duration:g}s"  # (a longer run is another file)
         p = d / f"rs_{'+'.join(effects) or 'clean'}{tag}_{seed}_{steer_amp:g}.mcap"
         if not p.exists():
             record(SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp,
@@ -156,7 +157,8 @@ def scaling(d: Path, quick: bool) -> dict:
     base = load_runs(make_runs(d, ("actuator_lag",)), v)
     out = {"length": [], "candidates": []}
     for k in ((1, 2) if quick else (1, 4, 16)):
-        runs = load_runs(make_runs(d, ("actuator_lag",), duration=40.0 * k), v)
+        run_s = 40.0 * k
+        runs = load_runs(make_runs(d, ("actuator_lag",), duration=run_s), v)
         # best of several at every length, most where a fit is shortest: one fit of the x1 runs
         # takes 0.15-0.35 s, and a single sample of it (the ratios' denominator) moved the x16 ratio
         # between x16 and x29 from bench to bench
@@ -166,7 +168,8 @@ def scaling(d: Path, quick: bool) -> dict:
         # the samples the fit works on (the moving stretches, at the fit's rate): what its time
         # should grow with
         fitted = int(sum(len(s.t) for s in dataset.dynamic_stretches(runs)))
-        out["length"].append({"factor": k, "samples": int(sum(len(r.t) for r in runs)), "fitted": fitted,
+        out["length"].append({"factor": k, "run_s": run_s, "samples": int(sum(len(r.t) for r in runs)),
+                              "fitted": fitted,
                               "fit_s": t_fit, "fit_n": n_fit, "diagnose_s": t_diag})
     names = list(available_effects())
     for m in ((1, len(names)) if quick else (1, 3, len(names))):

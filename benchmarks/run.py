@@ -113,7 +113,7 @@ def _rows(quick: bool, data_dir):
     for row in sc["length"]:
         rf, rd = row["fit_s"] / base["fit_s"], row["diagnose_s"] / base["diagnose_s"]
         data = row["fitted"] / base["fitted"]
-        yield ("scaling", f"run length x{row['factor']} (two runs of {40 * row['factor']} s; {row['samples']:,} samples, "
+        yield ("scaling", f"run length x{row['factor']} (two runs of {row['run_s']:g} s; {row['samples']:,} samples, "
                           f"{row['fitted']:,} fitted: "
                           f"x{data:.1f}; fit best of {row['fit_n']}, "
                           "diagnose once)",
