@@ -24,6 +24,8 @@ def add_identifiability_warnings(result, model, stretches) -> None:
     c = result.corr
     for i in range(len(result.names)):
         for j in range(i + 1, len(result.names)):
-            if abs(c[i, j]) > 0.98:
+            # judged as printed ("strongly correlated: Cf-Cr +0.98" rounds to two places): 0.9798
+            # printed as +0.98 without this warning read as a contradiction
+            if round(abs(c[i, j]), 2) >= 0.98:
                 result.warn(f"{result.names[i]} and {result.names[j]} are almost fully correlated "
                             f"({c[i, j]:+.3f}): the data determine a combination of them, not each one")
