@@ -106,7 +106,7 @@ def fingerprint() -> str:
         for root, dirs, files in os.walk(top):
             dirs[:] = sorted(d for d in dirs if d != "__pycache__")
             for f in sorted(files):
-                if f.endswith((".py", ".html", ".toml", ".so")):
+                if f.endswith((".py", ".html", ".toml", ".so", ".c")):  # (.c: a newer source retires its build)
                     p = os.path.join(root, f)
                     h.update(f"{p}:{os.stat(p).st_mtime_ns}".encode())
     return h.hexdigest()[:16]

@@ -398,3 +398,18 @@ def test_the_live_views_background_diagnosis_is_served(server, run_file, monkeyp
     text = bd.poll(20.0)
     assert text and text.startswith("diagnosis:") and "stid diagnose" in text, text
     assert len(server.served()) == before + 1, "the diagnosis did not run in the server"
+
+
+def test_the_fingerprint_counts_every_kind_of_source_a_command_runs(tmp_path, monkeypatch):
+    """A server must not outlive the code it loaded: a page, a car file, the C loop's build, and the
+    C loop's source, whose edit retires the build (stid.models.recursion) until make runs."""
+    from stid import serve
+
+    for f in ("a.py", "page.html", "car.toml", "_ltv_recursion.so", "ltv_recursion.c"):
+        (tmp_path / f).write_text("")
+    monkeypatch.setattr(serve, "_source_dirs", lambda: [str(tmp_path)])
+    for f in ("a.py", "page.html", "car.toml", "_ltv_recursion.so", "ltv_recursion.c"):
+        before = serve.fingerprint()
+        st = os.stat(tmp_path / f)
+        os.utime(tmp_path / f, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+        assert serve.fingerprint() != before, f"{f} edited, the server's fingerprint unchanged"
