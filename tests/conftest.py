@@ -137,7 +137,12 @@ def stimulus_file(tmp_path):
 
 @pytest.fixture(scope="session")
 def simdir(tmp_path_factory):
-    """One directory of simulated runs shared by the whole session (see simdata.py)."""
+    """One directory of simulated runs shared by the whole session, and by its xdist workers
+    (the parent of a worker's base directory is the session's; see simdata.py)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        d = tmp_path_factory.getbasetemp().parent / "sim"
+        d.mkdir(exist_ok=True)
+        return d
     return tmp_path_factory.mktemp("sim")
 
 

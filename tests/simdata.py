@@ -2,10 +2,17 @@
 
 Everything goes through the real firmware on the simulated board and the
 recorder, as a user's runs would; only the truth sidecar is test-only.
+
+Under pytest-xdist the workers share one directory (``conftest.simdir``): the first worker
+to need a run records it, one that needs it meanwhile waits for it (an ``flock`` on the
+run's lock file) and reads it. Each worker recorded its own copy before: 91 s of the
+suite's 278 s of simulation were the same runs again.
 """
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import json
 from pathlib import Path
 
@@ -26,16 +33,33 @@ def sim_run(root: Path, manoeuvre: str = "random_steer", effects=(), seed: int =
            board, speed_end, repr(car), rate_hz)
     if key in _CACHE:
         return _CACHE[key]
-    name = f"{manoeuvre}_{'+'.join(sorted(effects)) or 'clean'}_{seed}_{speed}_{abs(hash(key)) % 10**8}"
+    name = f"{manoeuvre}_{'+'.join(sorted(effects)) or 'clean'}_{seed}_{speed}_{_digest(key)}"
     mcap = root / f"{name}.mcap"
     csv_path = root / f"{name}.csv" if csv else None
     cfg = SimConfig(plan=Plan(name=manoeuvre, duration=duration, speed=speed, steer_amp=steer_amp,
                               bandwidth=bandwidth, speed_end=speed_end), effects=tuple(effects), seed=seed,
                     board=board, beta_sensor=beta_sensor, car=car or CarParams(), rate_hz=rate_hz)
-    record(cfg, mcap, csv_path=csv_path, truth_path=root / f"{name}.truth.json")
+    _once(mcap, lambda: record(cfg, mcap, csv_path=csv_path, truth_path=root / f"{name}.truth.json"))
     out = csv_path if csv else mcap
     _CACHE[key] = out
     return out
+
+
+def _digest(key) -> str:
+    """The same in every worker (``hash`` of a string is salted per process)."""
+    return hashlib.sha1(repr(key).encode()).hexdigest()[:10]
+
+
+def _once(mcap: Path, make) -> None:
+    """Record ``mcap`` unless a worker of this session has (its ``.done`` marker); a worker
+    recording it holds the lock, so the others wait for the run instead of recording it too.
+    A worker that dies mid-run releases the lock without the marker: the next one records."""
+    done = mcap.with_name(mcap.name + ".done")
+    with open(mcap.with_name(mcap.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            make()
+            done.touch()
 
 
 def truth(path: Path) -> dict:
@@ -54,9 +78,9 @@ def effect_file_run(root: Path, effect_file: Path, seed: int = 1, speed: float =
     key = ("effect_file", str(effect_file), seed, speed, duration, steer_amp, bandwidth)
     if key in _CACHE:
         return _CACHE[key]
-    mcap = root / f"random_steer_{Path(effect_file).stem}_{seed}_{speed}_{abs(hash(key)) % 10**8}.mcap"
+    mcap = root / f"random_steer_{Path(effect_file).stem}_{seed}_{speed}_{_digest(key)}.mcap"
     cfg = SimConfig(plan=Plan(name="random_steer", duration=duration, speed=speed, steer_amp=steer_amp,
                               bandwidth=bandwidth), effect_files=(str(effect_file),), seed=seed)
-    record(cfg, mcap, truth_path=Path(str(mcap).rsplit(".", 1)[0] + ".truth.json"))
+    _once(mcap, lambda: record(cfg, mcap, truth_path=Path(str(mcap).rsplit(".", 1)[0] + ".truth.json")))
     _CACHE[key] = mcap
     return mcap

@@ -73,8 +73,8 @@ def server():
 
 
 @pytest.fixture(scope="module")
-def run_file(tmp_path_factory):
-    return sim_run(tmp_path_factory.mktemp("serve"), effects=("actuator_lag",), duration=20.0)
+def run_file(simdir):
+    return sim_run(simdir, effects=("actuator_lag",), duration=20.0)
 
 
 def _stid(args, serve_dir, cwd=None, **env):
