@@ -239,6 +239,11 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
 # "n/a" where a sensor missed its sample): those rows are not measurements, as rows lost from a
 # uniform log are not. More than this share missing is not a logger's gap but a wrong column.
 MAX_MISSING_SHARE = 0.5
+# The speed's missing values in gaps up to this long are filled from its neighbours, and their rows
+# stay measurements: a wheel speed or odometry logged at 50 Hz in a 200 Hz file (three rows in four
+# without it) is a slower channel, not lost samples, and the speed barely changes within a gap this
+# short (a ROS bag's odometry is interpolated onto the IMU's instants alike, stid.ros.to_run).
+SPEED_FILL_S = MAX_FILLED_GAP_S  # (a longer gap cuts the run: _cut_at_unknown_input)
 
 
 def _numeric_columns(df, path):
@@ -254,6 +259,9 @@ def _numeric_columns(df, path):
     raw = {c: pd.to_numeric(df[c], errors="coerce").to_numpy(dtype=float) for c in present}
     bad = {c: ~np.isfinite(x) for c, x in raw.items()}
     n = len(df)
+    filled = _fill_speed(raw, bad)
+    if filled:
+        notes.append(filled)
     for c in list(present):
         share = float(bad[c].mean())
         if c not in REQUIRED and share == 1.0:
@@ -263,7 +271,7 @@ def _numeric_columns(df, path):
         if share > MAX_MISSING_SHARE:
             first = int(np.flatnonzero(bad[c])[0])
             raise InputError(f"{path}: column '{c}' has {int(bad[c].sum())} missing or non-numeric values in "
-                             f"{n} rows (first at data row {first + 1}: {df[c].iloc[first]!r}): more than half, "
+                             f"{n} rows (first at data row {first + 1}: {_cell(df[c].iloc[first])}): more than half, "
                              "so not a logger's gaps; is it the right column (the vehicle file's [csv] map), "
                              "and the delimiter and decimal mark the file uses?")
     timed = ~bad["t"]
@@ -292,6 +300,38 @@ def _numeric_columns(df, path):
                      f"number ({', '.join(f'{c} {k}' for c, k in counts.items())}; first at time {t[first]:g} s): "
                      "not measurements, left out of every fit as lost samples are")
     return cols, {"rows": rows, "input": inputs, "timed": timed}, notes
+
+
+def _cell(value) -> str:
+    """A CSV cell as the user wrote it (pandas reads an empty one as a float nan)."""
+    if isinstance(value, float) and np.isnan(value):
+        return "empty or nan"
+    return repr(str(value))
+
+
+def _fill_speed(raw: dict, bad: dict) -> str:
+    """The speed's values missing in gaps up to SPEED_FILL_S (by the file's own times) filled in
+    linearly from the values around them, in ``raw`` and ``bad``; what was done, in words (empty:
+    nothing)."""
+    raw["vx"] = vx = raw["vx"].copy()  # (pandas may hand a read-only view)
+    t, gaps = raw["t"], bad["vx"] & ~bad["t"]
+    have = ~bad["vx"] & ~bad["t"]
+    if not gaps.any() or have.sum() < 2:
+        return ""
+    idx = np.flatnonzero(have)
+    after = np.searchsorted(idx, np.flatnonzero(gaps))  # the first value after each missing one
+    inside = (after > 0) & (after < len(idx))
+    rows = np.flatnonzero(gaps)[inside]
+    span = t[idx[after[inside]]] - t[idx[after[inside] - 1]]
+    rows = rows[span <= SPEED_FILL_S + 1e-9]
+    if not len(rows):
+        return ""
+    vx[rows] = np.interp(t[rows], t[idx], vx[idx])
+    bad["vx"][rows] = False
+    rate = len(idx) / max(float(t[idx[-1]] - t[idx[0]]), 1e-9)
+    return (f"vx is missing in {len(rows)} row(s) ({100 * len(rows) / len(t):.0f}%) between values at most "
+            f"{1e3 * SPEED_FILL_S:.0f} ms apart (a speed logged at ~{rate:.0f} Hz?): filled in linearly, the rows "
+            "kept (the speed barely changes in that time)")
 
 
 def _cut_at_unknown_input(run) -> list:

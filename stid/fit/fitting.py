@@ -109,9 +109,9 @@ def _fit_model(model, runs, method, dynamic, intervals, stretches, init, multist
 def _choose(runs) -> str:
     try:
         dataset.dynamic_stretches(runs)
-        has_dyn = True
-    except InputError:
-        has_dyn = False
+        has_dyn, why_not = True, ""
+    except InputError as e:
+        has_dyn, why_not = False, str(e)
     pts = dataset.steady_points(runs)
     has_ss = len(pts.ay) >= 5 and np.ptp(pts.ay) >= 1.0 if len(pts.ay) else False
     if has_dyn and has_ss:
@@ -120,9 +120,10 @@ def _choose(runs) -> str:
         return "time"
     if has_ss:
         return "steady"
-    raise InputError("the runs hold neither a stretch of driving with steering (for the dynamics) nor "
-                     "steady-state cornering: drive random steer or a lane change, or circles with a slow "
-                     "speed sweep")
+    # (why the dynamics cannot be fitted is the dynamic fit's to say: a run too short, too slow, or
+    # without measurements to use, not only one without steering)
+    raise InputError(f"the runs hold no steady-state cornering (circles with a slow speed sweep), and for the "
+                     f"dynamics: {why_not}")
 
 
 def two_step(model: Model, runs, dynamic: str = "time", intervals: str = "model-error", init: dict | None = None,
