@@ -23,7 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
                                            "an existing file is never replaced without --overwrite")
     ap.add_argument("--overwrite", action="store_true", help="replace the -o file if it exists")
     ap.add_argument("--duration", type=float, help="stop after this many seconds")
-    ap.add_argument("--baud", type=int, default=LINK_BAUD,
+    ap.add_argument("--baud", type=baud_rate, default=LINK_BAUD,
                     help=f"baud rate: the firmware's UART rate (ignored by USB-CDC; default {LINK_BAUD})")
     ap.add_argument("--idle-timeout", type=float, default=10.0,
                     help="give up if no valid frame arrives within this many seconds (default 10)")
@@ -49,6 +49,24 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also serve the live view on http://127.0.0.1:PORT/ (no PORT: a free one, printed)")
     lv.add_argument("--every", type=float, default=2.0, help="seconds between live updates (default 2)")
     return ap
+
+
+# A UART's rates: from the slowest standard one to what USB-serial bridges reach (FTDI's FT232H
+# 12 Mbaud). 0 is no rate (on a real line it means hang up); beyond, the OS refuses it with a traceback.
+BAUD_RANGE = (50, 12_000_000)
+
+
+def baud_rate(text: str) -> int:
+    """--baud's value: a whole number of bits per second within BAUD_RANGE (argparse then says what is wrong)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of bits per second") from None
+    lo, hi = BAUD_RANGE
+    if not lo <= value <= hi:
+        raise argparse.ArgumentTypeError(f"{value} is no UART rate: give {lo} to {hi:,} bits per second (the "
+                                         f"firmware's is {LINK_BAUD}; USB-CDC boards ignore it)")
+    return value
 
 
 def live_arguments(args, ap) -> list | None:

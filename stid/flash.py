@@ -82,6 +82,9 @@ FRAME_OVERHEAD = 21  # header 10 + samples head 5 + CRC 4 + COBS code and delimi
 HOUSEKEEPING_BYTES_PER_S = 2 * 80 + 50 + 850 / 10  # compact HELLO + STATUS each second, full HELLO every 10 s
 
 
+FIRMWARE_RATES = (10, 5000)  # Hz: what the firmware's App accepts (as stid-sim checks too)
+
+
 def stream_bytes_per_s(rate_hz: int, batch: int, wheels: int = 1) -> float:
     return rate_hz * (RECORD_SIZE[wheels] + FRAME_OVERHEAD / batch) + HOUSEKEEPING_BYTES_PER_S
 
@@ -92,6 +95,10 @@ def _whole_us_rates(most: int):
 
 def check_link(board: str, rate_hz: int, batch: int, wheels: int = 1) -> str:
     """The link budget in one line; raises StidError when the rate does not fit."""
+    lo, hi = FIRMWARE_RATES
+    if not lo <= rate_hz <= hi:  # (the firmware's App refuses it at boot: the board would sit at the REPL)
+        raise StidError(f"--rate {rate_hz} Hz: the firmware samples at {lo} to {hi} Hz (firmware/micropython/app.py); "
+                        "try 200, 250, 400, 500, 625, 800 or 1000")
     if rate_hz <= 0 or 1_000_000 % rate_hz:
         raise StidError(f"--rate {rate_hz} Hz: the sample period must be a whole number of µs "
                         "(1000000 divisible by the rate): try 200, 250, 400, 500, 625, 800 or 1000")

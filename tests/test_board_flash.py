@@ -39,6 +39,19 @@ def test_refused_rate_names_the_arithmetic_and_a_rate_that_fits(capsys):
     assert fl.stream_bytes_per_s(most, 10) <= 0.8 * 92160 < fl.stream_bytes_per_s(above, 10)
 
 
+@pytest.mark.parametrize("rate", [8, 10000])
+def test_a_rate_the_firmware_refuses_at_boot_is_refused_before_flashing(rate):
+    """`stid flash --rate 8` printed a plan that flashed a board whose App then raised at boot
+    (the board sat at the REPL); the firmware's own range is read from its source here."""
+    import re
+
+    src = (FIRMWARE / "app.py").read_text()
+    lo, hi = map(int, re.search(r"if not (\d+) <= rate_hz <= (\d+)", src).groups())
+    assert fl.FIRMWARE_RATES == (lo, hi)
+    with pytest.raises(StidError, match=f"firmware samples at {lo} to {hi} Hz"):
+        fl.check_link("pico", rate, 1)
+
+
 def test_rate_must_give_a_whole_microsecond_period():
     with pytest.raises(StidError, match="whole number of µs"):
         fl.check_link("pico", 300, 10)

@@ -292,3 +292,15 @@ def test_another_usb_serial_number_after_a_replug_is_refused(monkeypatch, tmp_pa
     lg.identity = {"usb_serial": "E66038B7132F"}
     with pytest.raises(lg_mod.OtherBoardError, match="E6614C311B2A"):
         lg._identify(Recorder.__new__(Recorder))
+
+
+@pytest.mark.parametrize("baud", ["-1", "0", "99999999999", "fast"])
+def test_a_baud_rate_no_uart_has_is_refused_in_one_line(tmp_path, baud):
+    """A fresh user's `--baud -1` ended in pyserial's ValueError traceback, 99999999999 in an
+    OverflowError, and 0 (hang up, on a real line) was taken."""
+    r = subprocess.run([tool("stid-log"), str(tmp_path / "ttyUSB9"), "--baud", baud, "-o", str(tmp_path / "x.mcap")],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    said = [line for line in r.stderr.splitlines() if "error" in line]  # (after argparse's usage)
+    assert len(said) == 1 and "--baud" in said[0] and "bits per second" in said[0], r.stderr
+    assert not (tmp_path / "x.mcap").exists()
