@@ -238,6 +238,16 @@ def test_misspelt_key_is_named_with_the_nearest_known_key(tmp_path):
     assert "mass_kg" in msg and "did you mean 'mass'" in msg, msg
 
 
+def test_a_mass_in_grams_is_named(tmp_path):
+    """A 1:8 car's 3500 g passed the kg check (anything under 5000 did): every stiffness and Iz came
+    out 1000 times too large, without a word. Real cars from a 1:28 RC car to a van still load."""
+    msg = vehicle_error(tmp_path, 'mass = 3500\na = 0.17\nb = 0.16\n')
+    assert "mass 3500 kg" in msg and "grams" in msg, msg
+    for mass, a, b in ((3.5, 0.17, 0.16), (0.2, 0.045, 0.045), (1500, 1.2, 1.5), (3000, 1.5, 1.8)):
+        (tmp_path / "ok.toml").write_text(f"mass = {mass}\na = {a}\nb = {b}\n")
+        load_vehicle(tmp_path / "ok.toml")
+
+
 def test_unknown_table_is_named(tmp_path):
     msg = vehicle_error(tmp_path, BASE + "[tyres]\nmu = 0.9\n")
     assert "[tyres]" in msg and "[sensors]" in msg, msg
