@@ -184,6 +184,9 @@ class Layout:
     imu_silent_s: tuple = ()  # (from, to) [s]: the IMU driver published nothing then (it stalled)
     imu_stamp_jitter_s: float = 0.0  # rms of a random error in each IMU header stamp (the sample is on time)
     imu_lost_every: int = 0  # every so many IMU messages one is lost (never reaches the bag)
+    # the odometry's twist in the world's frame (child_frame_id "odom", against REP 105), the car
+    # heading this many radians from the world's x at the start (None: in the car's frame)
+    odom_world_heading: float | None = None
 
 
 def _imu_axes(layout: Layout, body: np.ndarray) -> np.ndarray:
@@ -250,13 +253,17 @@ def write_bag(d: Drive, path: Path, layout: Layout = Layout(), ros1: bool = Fals
         events.append((rx(t), layout.imu_topic, imu_cls.__msgtype__, m))
     t_od = d.t[d.odom_k]
     yaw_rate = layout.odom_yaw_sign * d.vx[d.odom_k] * np.tan(d.steer[d.odom_k]) / L  # as vesc_to_odom computes it
+    child, twist_x, twist_y = "base_link", d.odom_vx, np.zeros(len(t_od))
+    if layout.odom_world_heading is not None:  # the body's forward speed turned into the world's axes
+        heading = layout.odom_world_heading + np.cumsum(d.r)[d.odom_k] / BASE_HZ
+        child, twist_x, twist_y = "odom", d.odom_vx * np.cos(heading), d.odom_vx * np.sin(heading)
     for k, t in enumerate(t_od):
         pose = od["PoseWithCovariance"](pose=od["Pose"](position=od["Point"](x=0.0, y=0.0, z=0.0),
                                                         orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0)),
                                         covariance=zero36)
-        tw = od["TwistWithCovariance"](twist=od["Twist"](linear=V3(x=d.odom_vx[k], y=0.0, z=0.0),
+        tw = od["TwistWithCovariance"](twist=od["Twist"](linear=V3(x=twist_x[k], y=twist_y[k], z=0.0),
                                                          angular=V3(x=0.0, y=0.0, z=yaw_rate[k])), covariance=zero36)
-        m = odom_cls(header=header(t, "odom", layout.odom_topic), child_frame_id="base_link", pose=pose, twist=tw)
+        m = odom_cls(header=header(t, "odom", layout.odom_topic), child_frame_id=child, pose=pose, twist=tw)
         events.append((rx(t), layout.odom_topic, odom_cls.__msgtype__, m))
     for t, a in zip(d.cmd_t, d.cmd):
         if layout.servo:

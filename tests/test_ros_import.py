@@ -365,6 +365,23 @@ def test_rates_differ_and_jitter(tmp_path):
     assert "/odom (33 Hz)" in run.meta["notes"][0]
 
 
+def test_a_twist_in_the_worlds_frame_is_the_speed_forward_not_reversing(drive, tmp_path):
+    """A fresh user's odometry published its twist in the world's frame (child_frame_id "odom"):
+    its linear.x was taken as the forward speed's sign, so the car heading away from the world's x
+    read as reversing, and 65% of the run was left out as such with only a note. Now the speed is
+    the twist's magnitude, forward, and a warning says the frame is not the car's."""
+    bag = rd.write_bag(drive, tmp_path / "world", rd.Layout(odom_world_heading=2.5))
+    (run,) = load_file(bag, _vehicle(tmp_path))
+    truth = np.interp(run.t, drive.t[drive.odom_k] - drive.t[drive.odom_k][0], drive.odom_vx)
+    moving = truth > 1.0
+    x_world = np.interp(run.t, drive.t[drive.odom_k] - drive.t[drive.odom_k][0],
+                        drive.odom_vx * np.cos(2.5 + np.cumsum(drive.r)[drive.odom_k] / rd.BASE_HZ))
+    assert np.mean(x_world[moving] < 0) > 0.3  # (the old reading: reversing for that share of the run)
+    assert np.all(run.vx[moving] > 0.9) and np.allclose(run.vx[moving], truth[moving], atol=0.1)
+    said = " ".join(run.meta.get("warnings", []))
+    assert "not in the car's frame" in said and "reversing cannot be told" in said, said
+
+
 def test_ros2_and_ros1_fit_as_the_contract_csv(drive, contract, plain_bag, tmp_path):
     """Same parameters from the bags (the rosbag2 directory, its .mcap file, a ROS 1 bag with
     the IMU turned) as from the contract CSV, within a tenth of their standard error; and

@@ -221,7 +221,7 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
            "r": np.interp(grid, imu_t, gyro[2])}
     od, od_t = cols[choice.odometry], times[choice.odometry]
     speed_scale = float(table.get("speed_scale", 1.0))
-    sig["vx"] = np.interp(grid, od_t, speed_scale * _forward_speed(od, notes, choice.odometry))
+    sig["vx"] = np.interp(grid, od_t, speed_scale * _forward_speed(od, warnings, choice.odometry))
     if speed_scale != 1.0:
         notes.append(f"{choice.odometry}: speed x {speed_scale:g} ([ros] speed_scale)")
     tilt = _tilt(np.vstack([np.interp(grid, imu_t, a) for a in acc]), sig["vx"], rate, vehicle, notes)
@@ -487,13 +487,22 @@ def _tilt(acc, vx, rate, vehicle, notes):
     return found
 
 
-def _forward_speed(od, notes, topic) -> np.ndarray:
+def _forward_speed(od, warnings, topic) -> np.ndarray:
+    """The forward speed: the twist's linear.x (REP 105: in the car's frame). A twist with a large
+    sideways part is in another frame, most often the world's (child_frame_id the same as the
+    header's "odom"): there linear.x is the speed along the world's x, whose sign says where the car
+    heads, not whether it reverses (it was taken as the sign: a fresh user's car heading west for
+    65% of a run read as reversing, and that 65% was left out as such). The speed is then the
+    twist's magnitude, forward, and a warning says so."""
     vx = od["twist.twist.linear.x"]
     vy = od["twist.twist.linear.y"]
     if np.sqrt(np.mean(vy ** 2)) > 0.3 * max(np.sqrt(np.mean(vx ** 2)), 1e-9):
-        notes.append(f"{topic}: the twist has a large sideways part (not in the car's frame, REP 105?): vx is "
-                     "its magnitude, signed as linear.x")
-        return np.sign(vx) * np.hypot(vx, vy)
+        warnings.append(f"{topic}: the twist has a large sideways part (rms {np.sqrt(np.mean(vy ** 2)):.2f} m/s "
+                        f"against {np.sqrt(np.mean(vx ** 2)):.2f} along x): it is not in the car's frame (REP 105 "
+                        "puts it in the child frame; is child_frame_id the world's, as 'odom'?). vx is taken as its "
+                        "magnitude, forward: reversing cannot be told from it (publish the twist in the car's "
+                        "frame, e.g. base_link, to have it)")
+        return np.hypot(vx, vy)
     return vx
 
 
