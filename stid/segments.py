@@ -24,9 +24,23 @@ def runs_of(mask: np.ndarray, min_len: int):
     return [(int(a), int(b)) for a, b in pairs if b - a >= min_len]
 
 
+# A speed that reads noise about zero at rest (an odometry, a fused estimate) is judged by its
+# mean over STILL_MEAN_S, each sample within STILL_NOISE x v_still: a trial user's odometry read
+# +-0.07 m/s at rest (sd 0.02), and sample by sample its 3 s stand-still fell into pieces under
+# 0.5 s ("stands still for under 0.5 s, too little to show the gyro's zero"). A wheel sensor's,
+# which reads exactly 0 at rest, is judged sample by sample, as it always was.
+STILL_MEAN_S = 0.2
+STILL_NOISE = 4.0
+EXACT_ZERO_S = 0.25  # this long at exactly 0: a speed that reads 0 at rest
+
+
 def still_mask(vx: np.ndarray, fs: float, v_still: float = 0.05, min_s: float = 0.5) -> np.ndarray:
     """True where the car stands still (no wheel motion) for at least ``min_s``."""
+    vx = np.asarray(vx, float)
     mask = np.abs(vx) < v_still
+    if len(vx) and not runs_of(vx == 0.0, max(1, int(EXACT_ZERO_S * fs))):
+        mean = uniform_filter1d(np.nan_to_num(vx), max(1, int(round(STILL_MEAN_S * fs))))
+        mask = (np.abs(mean) < v_still) & (np.abs(vx) < STILL_NOISE * v_still)
     out = np.zeros(len(vx), bool)
     # the edges of a still stretch still move (rolling to a stop): keep its core
     trim = int(0.1 * fs)

@@ -112,3 +112,26 @@ def test_a_trimmed_car_with_a_tilted_accelerometer_is_not_told_its_gyro_is_off(t
     if "sensor_bias" in named:
         allowed = GYRO_ZERO_DRIFT + Z * runs[0].meta["gyro_zero"]["stderr"]
         assert abs(final.value("bias_r")) <= allowed, final.table()
+
+
+@pytest.mark.parametrize("reading", ["noise about 0", "its magnitude"])
+def test_a_stand_still_whose_speed_reads_noise_is_one(tmp_path, reading):
+    """An odometry or fused speed reads noise about zero at rest, not 0: a trial user's +-0.07 m/s
+    (sd 0.02) split a 4 s stand-still, sample by sample against 0.05 m/s, into pieces under 0.5 s,
+    and the run was said to stand still "for under 0.5 s, too little to show the gyro's zero"
+    (the bias then left to a fit). It is now one stand-still, and the zero is taken from it."""
+    (ref,), _ = zeroed_run(tmp_path)
+    path = tmp_path / "run.csv"
+    import pandas as pd
+
+    df = pd.read_csv(path)
+    rng = np.random.default_rng(5)
+    at_rest = df["vx"].to_numpy() == 0.0
+    noise = 0.02 * rng.standard_normal(int(at_rest.sum()))
+    df.loc[at_rest, "vx"] = noise if reading == "noise about 0" else np.abs(noise)
+    df.to_csv(path, index=False, float_format="%.7g")
+    (run,) = load_runs([path], load_vehicle(tmp_path / "car.toml"))
+    zero = run.meta.get("gyro_zero")
+    assert zero is not None, run.meta["notes"]
+    assert zero["still_s"] == pytest.approx(ref.meta["gyro_zero"]["still_s"], abs=0.3), (zero, ref.meta["gyro_zero"])
+    assert zero["value"] == pytest.approx(OFFSET, abs=4 * zero["stderr"]), zero
