@@ -131,14 +131,27 @@ class HallCounter:
         # count and latest edge time into s_count, s_t; with as_of_t, as of ticks t (the
         # sample's instant, earlier than the interrupt with adc_scan): an edge at or
         # after t is not counted yet
+        # The state read whole: where the pin IRQ is hard and the sampler soft (a Pico on
+        # MicroPython 1.23-1.25), an edge can land between two reads, and a count paired with
+        # the next edge's time read as a one-interval speed spike. _edge writes count last: read
+        # again until it is the same after the rest.
         c = self.count
-        tl = self.t_last
-        if not self._old:
+        while True:
+            tl = self.t_last
+            tp = self.t_prev
+            young = not self._old
+            n = self.count
+            if n == c:
+                break
+            c = n
+        if young:
             d = time.ticks_diff(t, tl)  # the edge is young: the sign is true
             if as_of_t and d <= 0:
                 c = (c - 1) & 0xFFFF
-                tl = self.t_prev
+                tl = tp
             elif d >= self.debounce_us:
                 self._old = True
+                if self.t_last != tl:  # an edge came meanwhile: it is young (its bounce is one)
+                    self._old = False
         self.s_count = c
         self.s_t = tl

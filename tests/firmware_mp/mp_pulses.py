@@ -115,4 +115,55 @@ b.now = t_end + 1210
 now = time.ticks_us()
 check(sp.read(now, now - 20) == 0, "the pulse before an outage is not the one in force after it")
 check(sp.read(now, now) == 1200, "the new pulse is")
+
+
+# -- an edge whose hard IRQ lands inside snap() (a Pico's soft sampler, MicroPython 1.23-1.25) --
+class Racy(HallCounter):
+    """The pin's IRQ runs once at a chosen point of snap(): at its first read of t_last after
+    `between_reads` is set (between the reads of count and t_last), or when it marks the edge
+    old after `before_old` is set (between its check of the edge's age and its write)."""
+
+    def __init__(self, pin_no, debounce_us):
+        self._tl = 0
+        self._o = True
+        self.between_reads = self.before_old = None
+        super().__init__(pin_no, debounce_us)
+
+    @property
+    def t_last(self):
+        t, self.between_reads = self.between_reads, None
+        if t is not None:
+            edge(self, t, 0)
+        return self._tl
+
+    @t_last.setter
+    def t_last(self, v):
+        self._tl = v
+
+    @property
+    def _old(self):
+        return self._o
+
+    @_old.setter
+    def _old(self, v):
+        t, self.before_old = (self.before_old, None) if v else (None, self.before_old)
+        if t is not None:
+            edge(self, t, 0)
+        self._o = v
+
+
+PIN = 44
+hc = Racy(PIN, 200)
+t = 40000000
+edge(hc, t, 0)
+hc.snap(t + 3000, False)
+hc.between_reads = t + 5000
+hc.snap(t + 5010, False)
+check((hc.s_count, hc.s_t) in ((1, t & 0x3FFFFFFF), (2, (t + 5000) & 0x3FFFFFFF)),
+      "count and edge time of one edge, an edge landing between their reads (%d, %d)" % (hc.s_count, hc.s_t))
+hc.before_old = t + 10000  # the edge lands as the snap marks the one before old
+hc.snap(t + 10000 + 10, False)
+edge(hc, t + 10000 + 40, 0)  # that edge's bounce, 40 us on
+check(hc.count == 3 and hc.bounces == 1, "the bounce of an edge that landed inside snap() is a bounce (%d pulses, "
+      "%d bounces)" % (hc.count, hc.bounces))
 done()
