@@ -93,6 +93,15 @@ def default_output_name() -> str:
     return time.strftime("stid-%Y%m%d-%H%M%S.mcap")
 
 
+def restart_causes(reset_cause: str | None) -> str:
+    """What restarts a car, for the warning: its watchdog fires when its sampler stops (an
+    exception in it), not when the host stops reading (firmware/README.md: the watchdog is fed by
+    the sampler's progress, never by the host)."""
+    if reset_cause == "watchdog":
+        return "the watchdog restarts the car when its sampler stops (an exception in it), not when the host stops reading"
+    return "a brown-out (a sagging battery under the motor's current), the reset button or a crash restarts it"
+
+
 def open_port(path: str, baud: int, read_timeout: float = 0.02) -> serial.Serial:
     try:
         # exclusive: a second program opening the port would steal half the bytes of each
@@ -329,8 +338,7 @@ class Logger:
                 r = rec.car_restarts()[-1]
                 self._warn(rec, "restart", f"the car restarted (reset cause: {r['reset_cause'] or 'not yet known'}"
                            + (f", {r['gap_s']:.1f} s without samples" if r["gap_s"] is not None else "")
-                           + "): the run goes on as a new piece; a stall of the host past the car's 2 s watchdog, "
-                           "a brown-out or the reset button restarts it")
+                           + "): the run goes on as a new piece; " + restart_causes(r["reset_cause"]))
             if rec.stats.accepted == 0 and now - t0 > o.idle_timeout:
                 self._no_data(rec)
             log.maybe_flush(o.flush_period)
