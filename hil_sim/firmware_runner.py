@@ -55,7 +55,7 @@ def firmware_env(stimulus: Path, realtime: bool = False, board_opts: dict | None
 HEAP_MB = 8
 
 
-def start_firmware(stimulus: Path, rate_hz: int = 500, batch: int = 10, ring_size: int | None = 256,
+def start_firmware(stimulus: Path, rate_hz: int = 500, batch: int = 10, ring_size: int | None = None,
                    realtime: bool = False, board_opts: dict | None = None,
                    firmware_dir: Path = FIRMWARE_DIR) -> subprocess.Popen:
     """ring_size None: the firmware's own default (sized for a 1 s host stall)."""

@@ -31,7 +31,7 @@ class SimConfig:
     board: str = "pico"
     rate_hz: int = 500
     batch: int = 10
-    ring_size: int = 256
+    ring_size: int | None = None  # None: the firmware's own (1.25 s of samples), as `stid flash` leaves a board
     dt: float = 1e-3  # s, truth integration step
     fs_sig: int = 5000  # Hz, pin voltage grid
     start_ticks: int = 0

@@ -40,7 +40,7 @@ def _firmware_bytes(stim, tmp_path, cfg, opts, heap="8M"):
     env = firmware_env(stim, board_opts=opts)
     env["MICROPYPATH"] = f"{shim}:{BOARD}:{FIRMWARE}"
     proc = subprocess.run([tool("micropython"), "-X", f"heapsize={heap}", str(BOARD / "run_firmware.py"),
-                           str(cfg.rate_hz), str(cfg.batch), str(cfg.ring_size)],
+                           str(cfg.rate_hz), str(cfg.batch), str(cfg.ring_size or 0)],
                           capture_output=True, env=env, timeout=120)
     assert proc.returncode == 0, proc.stderr.decode(errors="replace")[-2000:]
     return proc.stdout
