@@ -308,6 +308,41 @@ def _filler(ts, msgtype):
     raise ValueError(msgtype)
 
 
+def split_bag(src: Path, dst_dir: Path, pieces: int = 3, chunk_size: int = 64 * 1024) -> list:
+    """The bag's messages in ``pieces`` files split by time, as ``ros2 bag record --max-bag-duration``
+    writes them (NAME_0.mcap, NAME_1.mcap, ...; zstd chunks, libmcap-like), without the
+    metadata.yaml rosbag2 writes when it stops. Returns the files."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(src, "rb") as f:
+        reader = make_reader(f)
+        profile = reader.get_header().profile
+        msgs = [(s, c, m) for s, c, m in reader.iter_messages(log_time_order=True)]
+    t0, t1 = msgs[0][2].log_time, msgs[-1][2].log_time + 1
+    dst_dir.mkdir(parents=True, exist_ok=True)
+    files = []
+    for k in range(pieces):
+        lo, hi = t0 + (t1 - t0) * k // pieces, t0 + (t1 - t0) * (k + 1) // pieces
+        path = dst_dir / f"{dst_dir.name}_{k}.mcap"
+        with open(path, "wb") as out:
+            w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+            w.start(profile=profile, library="libmcap-like (stid tests)")
+            schemas, channels = {}, {}
+            for schema, channel, msg in msgs:
+                if not lo <= msg.log_time < hi:
+                    continue
+                if schema.id not in schemas:
+                    schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+                if channel.id not in channels:
+                    channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                              schemas[schema.id], channel.metadata)
+                w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+            w.finish()
+        files.append(path)
+    return files
+
+
 def ros2_mcap(bag_dir: Path) -> Path:
     """The .mcap file inside a rosbag2 directory (what a user may give instead of the directory)."""
     (f,) = sorted(bag_dir.glob("*.mcap"))

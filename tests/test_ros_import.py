@@ -780,6 +780,28 @@ def test_a_ros2_bag_its_recorder_did_not_close_is_read_to_its_last_chunk(drive, 
     _same_data(run, contract, drive)
 
 
+@pytest.mark.parametrize("last", ["closed", "not closed"])
+def test_a_split_bag_without_its_metadata_reads_as_one_run(drive, contract, tmp_path, last):
+    """A recorder killed mid-run leaves a split bag's pieces and no metadata.yaml. It was refused
+    ("a directory, not a ROS 2 bag"), and its pieces given one by one lost the second's gyro zero
+    (only the first stands still). Now its pieces are read in order as one run, and said; a last
+    piece not closed is read to its last complete chunk."""
+    bag = rd.write_bag(drive, tmp_path / "whole", rd.Layout())
+    split = tmp_path / "run"
+    files = rd.split_bag(rd.ros2_mcap(bag), split, pieces=3)
+    if last == "not closed":
+        data = files[-1].read_bytes()
+        files[-1].write_bytes(data[:len(data) * 2 // 3])
+    (run,) = load_file(split, _vehicle(tmp_path))
+    said = " ".join(run.meta.get("warnings", []))
+    assert "no metadata.yaml" in said and "3 pieces read in order" in said, said
+    assert ("not closed" in said) == (last == "not closed"), said
+    assert "gyro zero" in " ".join(run.meta["notes"])
+    share = run.duration / contract.duration
+    assert share > 0.99 if last == "closed" else 0.7 < share < 0.95, (run.duration, contract.duration)
+    _same_data(run, contract, drive)
+
+
 def test_a_bag_whose_messages_are_compressed_one_by_one_reads_from_its_directory(drive, contract, tmp_path):
     """ros2 bag record --compression-mode message: the block reader read the compressed bytes as
     messages and called the bag damaged (a new user's trial). The directory reads as the plain

@@ -38,9 +38,10 @@ def kind_of(path) -> str | None:
     if path.is_dir():
         if (path / "metadata.yaml").is_file():
             return "ros2"
-        # rosbag2 writes metadata.yaml when it stops: a killed recorder's directory has its .mcap alone
-        inside = sorted(path.glob("*.mcap"))
-        return "ros2" if len(inside) == 1 and kind_of(inside[0]) == "ros2" else None
+        # rosbag2 writes metadata.yaml when it stops: a killed recorder's directory has its .mcap
+        # files alone (one, or the pieces of a split bag)
+        inside = split_files(path)
+        return "ros2" if inside and all(kind_of(f) == "ros2" for f in inside) else None
     try:
         with open(path, "rb") as f:
             head = f.read(16)
@@ -53,6 +54,18 @@ def kind_of(path) -> str | None:
     if head.startswith(MCAP_MAGIC):
         return "ros2" if _mcap_is_ros2(path) else None
     return None
+
+
+def split_files(bag_dir) -> list:
+    """The .mcap files of a ROS 2 bag directory in the order rosbag2 wrote them (NAME_0.mcap,
+    NAME_1.mcap, ..., NAME_10.mcap: by the number, not as text)."""
+    import re
+
+    def key(f):
+        m = re.search(r"_(\d+)$", f.stem)
+        return (f.stem[:m.start()] if m else f.stem, int(m.group(1)) if m else -1)
+
+    return sorted(Path(bag_dir).glob("*.mcap"), key=key)
 
 
 ROS2_SCHEMAS = ("ros2msg", "ros2idl")
@@ -81,8 +94,11 @@ def _mcap_is_ros2(path) -> bool:
 class Bag:
     """An open ROS bag. Use as a context manager."""
 
-    def __init__(self, path):
+    def __init__(self, path, pieces=None):
+        """``pieces``: the files of a split bag read without its metadata.yaml (``path`` is then its
+        directory, for messages), in order."""
         self.path = Path(path)
+        self.pieces = [Path(p) for p in pieces] if pieces else None
         self.kind = kind_of(self.path)
         if self.kind is None:
             raise InputError(f"{self.path} is not a ROS bag")
@@ -104,13 +120,13 @@ class Bag:
 
         try:
             try:
-                reader = AnyReader([self.path])
+                reader = AnyReader(self.pieces or [self.path])
                 reader.open()
             except AnyReaderError as e:
                 if "no type definitions" not in str(e):
                     raise
                 # (the standard types are loaded only then: importing them costs half a second)
-                reader = AnyReader([self.path], default_typestore=default_typestore(self.kind))
+                reader = AnyReader(self.pieces or [self.path], default_typestore=default_typestore(self.kind))
                 reader.open()
         except Exception as e:  # noqa: BLE001 - rosbags' errors for a damaged or cut-short bag
             raise InputError(f"{self.path} is a {self.label} that does not open: {_first_line(e)}"
@@ -159,7 +175,7 @@ class Bag:
 
     def _fast(self, wanted):
         """ROS 2 MCAP storage in one file: stid.ros.mcap_blocks (none for anything else)."""
-        files = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]
+        files = self.pieces or (sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path])
         if self.kind != "ros2" or len(files) != 1 or files[0].suffix.lower() != ".mcap":
             return None
         if messages_compressed(files[0].parent):

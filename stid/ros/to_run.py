@@ -19,7 +19,7 @@ from stid import convert, input_checks, sensor_chain
 from stid.errors import InputError
 from stid.held_command import interval_means
 from stid.ros import topic_map
-from stid.ros.bag import Bag, messages_compressed
+from stid.ros.bag import Bag, messages_compressed, split_files
 from stid.ros.message_types import ACKERMANN, FIELDS, FLOAT64
 from stid.run import Run, fine_piece
 
@@ -303,12 +303,19 @@ def _open(path, table, where, said):
         with topic_files.TopicFiles(path, table) as files:
             yield files
         return
-    inside = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
+    inside = split_files(path) if path.is_dir() else [path]
+    bare = path.is_dir() and not (path / "metadata.yaml").exists()  # (rosbag2 writes it last)
+    if bare and len(inside) > 1:
+        # a split bag whose recorder was killed: its pieces in order, the last perhaps not closed
+        with tempfile.TemporaryDirectory(prefix="stid-unclosed-") as scratch:
+            pieces, cut = _closed_pieces(inside, Path(scratch), said)
+            with Bag(path, pieces=pieces) as bag:
+                yield bag
+        return
     cut = being_recorded(inside[0]) if len(inside) == 1 and not messages_compressed(inside[0].parent) else None
     if cut is None:
-        # (a bag directory without its metadata.yaml, which rosbag2 writes last: its one file)
-        alone = path.is_dir() and not (path / "metadata.yaml").exists() and len(inside) == 1
-        with Bag(inside[0] if alone else path) as bag:
+        # (a bag directory without its metadata.yaml: its one file)
+        with Bag(inside[0] if bare and len(inside) == 1 else path) as bag:
             yield bag
         return
     with tempfile.TemporaryDirectory(prefix="stid-unclosed-") as scratch:
@@ -322,6 +329,30 @@ def _open(path, table, where, said):
                     "a little more of its end")
         with Bag(copy) as bag:
             yield bag
+
+
+def _closed_pieces(inside: list, scratch: Path, said: list) -> tuple:
+    """The pieces of a split bag read without its metadata.yaml, each not closed (its recorder
+    killed while writing it: the last, as a rule) replaced by a copy up to its last complete
+    chunk in ``scratch``; what was done is said in ``said``. Returns (pieces, pieces copied)."""
+    from stid.ros.unclosed import being_recorded, readable_copy
+
+    pieces, copied = [], []
+    for f in inside:
+        cut = being_recorded(f) if not messages_compressed(f.parent) else None
+        if cut is None:
+            pieces.append(f)
+            continue
+        copy = scratch / cut.name
+        if readable_copy(cut, copy):
+            pieces.append(copy)
+        copied.append(f.name)
+    said.append(f"the bag's directory has no metadata.yaml (its recorder was killed, or is still recording): its "
+                f"{len(inside)} pieces read in order ({', '.join(f.name for f in inside)})"
+                + (f"; {', '.join(copied)} not closed: read up to its last complete chunk" if copied else ""))
+    if not pieces:
+        raise InputError(f"{inside[0].parent}: none of the bag's pieces holds a complete chunk of messages yet")
+    return pieces, copied
 
 
 TRANSPORT_SAID_MS = 1.0  # receive delays this far apart between the IMU and the command are said
