@@ -220,12 +220,23 @@ def _vehicle_and_runs(args, chain_warning: bool = False):
     from stid.vehicle_file import load_vehicle
 
     vehicle = load_vehicle(args.vehicle)
+    _check_models(args, vehicle)  # (a misspelt model is heard of before a bag's notes, not after)
     runs = load_runs(args.runs, vehicle)
     _print_load_warnings(runs)
     if chain_warning:
         for w in sensor_chain.undeclared_warnings(runs, vehicle):
             print(f"warning: {w}", file=sys.stderr)
     return vehicle, runs
+
+
+def _check_models(args, vehicle) -> None:
+    """The command's model names, checked against the catalogue (InputError for one it lacks)."""
+    from stid.models.model import Model
+
+    names = getattr(args, "model", None)
+    for name in names if isinstance(names, (list, tuple)) else [names]:
+        if isinstance(name, str) and not name.split("+")[0].strip().startswith("greybox"):
+            Model(name, vehicle)
 
 
 def _print_load_warnings(runs) -> None:

@@ -224,3 +224,16 @@ def test_a_run_cut_into_pieces_by_the_link_is_one_set_of_notes(capsys):
     assert ("note: drop.mcap: 1600 samples lost on the link (40.0%), left out of every fit; the log is in 4 pieces, "
             "cut where samples were lost or the car restarted (drop.mcap, #3, #4, #5)") in err, err
     assert len(err) == 3 + 1, err  # and the other file's warning (it lost nothing)
+
+
+def test_a_misspelt_model_is_heard_of_before_the_runs_are_read(tmp_path):
+    """A trial user's misspelt --model came after a bag's notes, once the whole run was read."""
+    cols = good_cols()
+    cols["ay"][100:105] = np.nan  # (a note when the run is read)
+    path = write_csv(tmp_path / "a.csv", cols)
+    for args in (("fit", path, "--model", "bicylce"), ("diagnose", path, "--model", "bicycle+lagg"),
+                 ("compare", path, "--model", "bicycle", "--model", "bicycle+lagg")):
+        r = stid(*args, "--vehicle", VEHICLE)
+        assert r.returncode == 2, r.stderr
+        assert r.stderr.strip().splitlines() == [r.stderr.strip().splitlines()[-1]], r.stderr  # (no note first)
+        assert "did you mean 'bicycle'" in r.stderr or "unknown effect 'lagg'" in r.stderr, r.stderr
