@@ -829,6 +829,28 @@ def test_gravity_off_plus_z_is_refused_with_the_imu_axes_that_put_it_up(drive, t
     assert run.meta["format"] == "ros"
 
 
+@pytest.mark.parametrize("mounted", [("-x", "-y", "z"), ("-x", "y", "-z")],
+                         ids=["half a turn about z", "half a turn about y"])
+def test_an_imu_turned_half_a_turn_is_led_to_the_axes_that_read(drive, tmp_path, mounted):
+    """Each refusal gives the imu_axes that fix what it found, and following them reads the bag. A
+    trial user's IMU turned about y was told first to put gravity up, then only that the axes were
+    declared wrong (ay ~ -vx*r): the second step had no value to set."""
+    import re
+
+    bag = rd.write_bag(drive, tmp_path / "run", rd.Layout(imu_to_body=mounted))
+    table = ""
+    for _ in range(3):
+        try:
+            (run,) = load_file(bag, _vehicle(tmp_path, table))
+            break
+        except InputError as e:
+            axes = re.search(r"imu_axes = (\[[^]]*\])", str(e)).group(1)
+            table = f"[ros]\nimu_axes = {axes}\n"
+    else:
+        raise AssertionError(f"still refused after {table}")
+    _same_data(run, load_file(rd.contract_csv(drive, tmp_path / "c.csv"))[0], drive)
+
+
 def test_a_topic_stamped_by_its_own_clock_points_to_receive_times(drive, tmp_path):
     """An IMU driver stamping by the time since its boot: the topics 'do not overlap', and the
     refusal now says what times them all (a new user's trial)."""

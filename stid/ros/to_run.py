@@ -283,8 +283,10 @@ def _check(run, table, where) -> None:
     """Units and signs against kinematics (stid.input_checks); an IMU turned 90 deg named."""
     try:
         input_checks.check_kinematics(run, source="ros")
-    except InputError:
+    except InputError as e:
         _check_turned(run, table, where)  # a better message, when that is what is wrong
+        if "(ay ~ -vx*r)" in str(e):  # (input_checks._sign_message: ay and r of opposite signs)
+            _check_half_turned(run, table, where)
         raise
     if any("could not be checked" in w for w in run.meta.get("warnings", [])):
         _check_turned(run, table, where)
@@ -464,6 +466,30 @@ def _gravity_up(rows: list, seen: str) -> list:
     return {"-z": [x, flip(y), flip(z)],  # upside down: half a turn about x
             "+x": [flip(z), y, x], "-x": [z, y, flip(x)],  # a quarter turn about y
             "+y": [x, flip(z), y], "-y": [x, z, flip(y)]}[seen]  # a quarter turn about x
+
+
+def _check_half_turned(run, table, where) -> None:
+    """ay against -vx*r: one of ay and r has its sign the other way, so the IMU is turned half a turn
+    from the axes declared, about z (x and y the other way: ay flipped, r not) or about y (x and z:
+    r flipped). r against the steer tells which. Said with the imu_axes that fix it (a trial user
+    with an IMU turned about y was told to fix imu_axes, not how)."""
+    est = input_checks._kinematic_gains(run)
+    if isinstance(est, str) or est[0] >= 0:
+        return
+    _, steer_sign = est
+
+    def flip(a):
+        return a[1:] if a.startswith("-") else "-" + a
+
+    x, y, z = list(table.get("imu_axes", ["x", "y", "z"]))
+    if steer_sign >= 0:  # r turns with the steer: ay is the flipped one (or, at 0, gravity on +z says z is right)
+        fixed, how = [flip(x), flip(y), z], "half a turn about z (its x points backwards)"
+    else:
+        fixed, how = [flip(x), y, flip(z)], "half a turn about y (upside down, its x backwards)"
+    axes = ", ".join(f'"{a}"' for a in fixed)
+    raise InputError(f"{where}: the yaw rate and the lateral acceleration have opposite signs (ay ~ -vx*r): the IMU "
+                     f"is turned {how} from the axes {'declared' if 'imu_axes' in table else 'assumed'}; set in the "
+                     f"vehicle file's [ros]: imu_axes = [{axes}]")
 
 
 def _check_turned(run, table, where) -> None:
