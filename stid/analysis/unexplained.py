@@ -72,6 +72,9 @@ def _regressors(stretches, preds):
     return {n: np.concatenate(v) for n, v in out.items()}
 
 
+EARLY_Z = 3.0  # standard errors: outputs this far ahead of the steer are said
+
+
 def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se, reasons=(),
                          catalogue_done: bool = True, mapper=map, parts=None) -> Unexplained:
     """What the model leaves, and where (``mapper``: over the per-speed refits, as in
@@ -107,6 +110,14 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     for o in short:
         u.where.append(f"{o} fits {result.fit[o]:.1f}%, {gap[o]:.1f} points short of the noise floor "
                        f"({floor[o]:.1f}% +- {floor_se[o]:.2f})")
+    # -- when: outputs that answer the steer before the model has them are no effect of the car's (no
+    # catalogue effect moves the steer later), and the gap then sent a trial user to write one
+    seen = result.extra.get("delay_seen_ms")
+    if seen is not None and seen[0] < 0 and abs(seen[0]) >= EARLY_Z * seen[1]:
+        u.where.append(f"the outputs answer the steer {abs(seen[0]):.2f} ms (std. error {seen[1]:.2f}) earlier than "
+                       f"{model_name} has them: the steer is timed late (a command timed by its receive time, as a "
+                       "ROS Float64 command without a header is: docs/ros.md; or a steer channel logged after "
+                       "the sensors), or a sensor filter is declared slower than it is ([sensors])")
     # -- which band: the model's residual against the floor's, band by band
     for i, o in enumerate(OUTS):
         rows = []
