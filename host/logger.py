@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import errno
+import re
 import os
 import signal
 import stat
@@ -91,6 +92,24 @@ class LogOptions:
 
 def default_output_name() -> str:
     return time.strftime("stid-%Y%m%d-%H%M%S.mcap")
+
+
+TAIL_BYTES = 2048
+TEXT_SHARE = 0.9  # of bytes printable ASCII: text, not a binary stream at the wrong baud rate
+
+
+def text_sent(tail: bytes, lines: int = 3, width: int = 120) -> str:
+    """The last lines of ``tail`` quoted, when it is text (a MicroPython traceback, a prompt), else ''."""
+    if len(tail) < 16:
+        return ""
+    printable = sum(32 <= b < 127 or b in (9, 10, 13) for b in tail)
+    if printable < TEXT_SHARE * len(tail):
+        return ""
+    got = [ln.strip() for ln in tail.decode("ascii", "replace").splitlines() if ln.strip()]
+    # the error a traceback ends in first (a REPL's banner and prompt follow it), then the last lines
+    errors = [ln for ln in got if re.match(r"[A-Za-z_.]*(Error|Exception)\b", ln)]
+    shown = ([errors[-1]] if errors else []) + [ln for ln in got[-lines:] if not errors or ln != errors[-1]]
+    return " | ".join(repr(ln[:width]) for ln in shown[:lines])
 
 
 def restart_causes(reset_cause: str | None) -> str:
@@ -218,6 +237,7 @@ class Logger:
         self.stop_reason: str | None = None
         self.port: serial.Serial | None = None
         self.path = Path(opts.output) if opts.output else None  # None: a new name when the run starts
+        self._tail = bytearray()  # the last bytes the port sent, while no frame has come (text_sent says them)
 
     def _create_log(self) -> McapLog:
         """The output, created here and now: -o as given (replaced only with --overwrite), or a
@@ -327,6 +347,8 @@ class Logger:
             host_ns = time.time_ns()
             before = rec.samples
             rec.feed(data, host_ns)
+            if data and not rec.stats.accepted:
+                self._tail = (self._tail + data)[-TAIL_BYTES:]
             if len(rec.uids) > 1:
                 raise OtherBoardError(
                     f"another board (uid {rec.uids[-1]}, was {rec.uids[0]}) is sending on {o.port}; {self.path} "
@@ -389,9 +411,16 @@ class Logger:
                    f"{self.path} (topic /stid/raw)")
         else:
             why = describe_rejects(rec.stats.errors)
+            text = text_sent(bytes(self._tail))
+            if text:  # a board at its REPL (the firmware raised, or was never started) prints text
+                hint = (f"it sends text, not frames; its last lines: {text} (a board at its MicroPython prompt "
+                        "sends text: the firmware stopped with an error, or is not installed ('stid flash'); else "
+                        "another device is on this port)")
+            else:
+                hint = advice(rec.stats.errors) if why else "wrong baud rate (--baud), or not the stid firmware?"
             msg = (f"{self.opts.port} sent {rec.stats.bytes} bytes but no valid stid frame in "
                    f"{self.opts.idle_timeout:.0f} s (rejected: {why or 'nothing frame-like'}): "
-                   f"{advice(rec.stats.errors) if why else 'wrong baud rate (--baud), or not the stid firmware?'} "
+                   f"{hint.rstrip('.?')}{'?' if hint.endswith('?') else '.'} "
                    f"The bytes are kept in {self.path} (topic /stid/raw)")
         raise NoDataError(msg)
 

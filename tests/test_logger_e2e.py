@@ -302,6 +302,29 @@ def test_garbage_on_the_port(tmp_path):
     assert not log.truncated and log.stats["bytes"] > 10000
 
 
+def test_a_board_at_its_prompt_is_quoted(tmp_path):
+    """A board whose firmware raised at boot sits at the MicroPython prompt and sends its traceback:
+    stid-log said only 'wrong baud rate, or not the stid firmware?', and the error that says why
+    was in /stid/raw alone."""
+    master, slave = os.openpty()
+    import tty
+
+    tty.setraw(slave)
+    text = (b"Traceback (most recent call last):\r\n  File \"main.py\", line 29, in <module>\r\n"
+            b"ValueError: rate_hz must be 10..5000 and divide 1000000 (a whole number of us)\r\n"
+            b"MicroPython v1.26.0 on 2025-08-09; Raspberry Pi Pico with RP2040\r\n"
+            b"Type \"help()\" for more information.\r\n>>> ")
+    proc = subprocess.Popen([tool("stid-log"), os.ttyname(slave), "-o", str(tmp_path / "x.mcap"),
+                             "--idle-timeout", "3"], stderr=subprocess.PIPE, text=True)
+    time.sleep(1.0)  # (once the logger has the port: what came before it opened is not its)
+    os.write(master, text)
+    _, err = proc.communicate(timeout=30)
+    os.close(master)
+    os.close(slave)
+    r = subprocess.CompletedProcess(proc.args, proc.returncode, "", err)
+    assert_clean_failure(r, 3, "no valid stid frame", "sends text", "'ValueError: rate_hz must be 10..5000")
+
+
 def test_full_disk(tmp_path):
     master, slave = os.openpty()
     try:
