@@ -281,7 +281,8 @@ class FrameDecoder:
             if rec is None:  # a type this version does not have
                 errors["type"] += 1
                 return None
-            if body_len < p.SAMPLES_HEAD_SIZE or body_len != p.SAMPLES_HEAD_SIZE + rec.itemsize * payload[p.HEADER_SIZE + 4]:
+            # (n is 1 to the most a frame holds: PROTOCOL.md; a frame of none is no frame the firmware sends)
+            if body_len <= p.SAMPLES_HEAD_SIZE or body_len != p.SAMPLES_HEAD_SIZE + rec.itemsize * payload[p.HEADER_SIZE + 4]:
                 errors["length"] += 1
                 return None
         elif ftype == p.STATUS:

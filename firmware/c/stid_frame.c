@@ -98,7 +98,7 @@ size_t stid_record_size(uint8_t version, uint8_t type) {
 
 size_t stid_pack_samples(uint8_t type, uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body) {
     size_t rs = stid_record_size(STID_VERSION, type);
-    if (rs == 0 || n > (type == STID_SAMPLES4 ? STID_MAX_BATCH4 : STID_MAX_BATCH)) return 0;
+    if (rs == 0 || n == 0 || n > (type == STID_SAMPLES4 ? STID_MAX_BATCH4 : STID_MAX_BATCH)) return 0;
     put_u32(body, index % STID_MOD);
     body[4] = n;
     uint8_t *p = body + 5;
@@ -157,7 +157,7 @@ static int check_frame(stid_decoder_t *d, stid_frame_t *out) {
     if (type == STID_SAMPLES || type == STID_SAMPLES4) {
         size_t rs = stid_record_size(version, type);
         if (rs == 0) return d->errors[STID_ERR_TYPE]++, 0;
-        if (body_len < 5 || body_len != 5u + rs * d->frame[STID_HEADER_SIZE + 4])
+        if (body_len <= 5 || body_len != 5u + rs * d->frame[STID_HEADER_SIZE + 4]) /* n is 1 to the most */
             return d->errors[STID_ERR_LENGTH]++, 0;
     } else if (type == STID_STATUS) {
         if (body_len != (version >= 3u ? STID_STATUS_SIZE : STID_STATUS_V2_SIZE))

@@ -89,7 +89,7 @@ size_t stid_encode_frame(uint8_t type, uint32_t seq, uint32_t t_us, const uint8_
 size_t stid_record_size(uint8_t version, uint8_t type);
 
 /* Pack n samples into a version 3 (= version 2) SAMPLES body (type STID_SAMPLES: 5 + 26 n bytes) or
- * SAMPLES4 body (STID_SAMPLES4: 5 + 44 n). Returns the body length, 0 if n is too large. */
+ * SAMPLES4 body (STID_SAMPLES4: 5 + 44 n). Returns the body length, 0 if n is 0 or too large. */
 size_t stid_pack_samples(uint8_t type, uint32_t index, const stid_sample_t *s, uint8_t n, uint8_t *body);
 /* Unpack one record of a (version, type) frame; fields the layout lacks are set to
  * their "absent" values. */

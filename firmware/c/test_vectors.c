@@ -104,6 +104,13 @@ int main(int argc, char **argv) {
         return 2;
     }
     CHECK(stid_crc32((const uint8_t *)"123456789", 9) == 0xCBF43926u, "CRC-32 check value");
+    {   /* a frame holds 1 to the most records (PROTOCOL.md): none, or one more, is refused */
+        static stid_sample_t none[STID_MAX_BATCH + 1];
+        static uint8_t body[STID_MAX_FRAME];
+        CHECK(stid_pack_samples(STID_SAMPLES, 0, none, 0, body) == 0, "a SAMPLES body of no records");
+        CHECK(stid_pack_samples(STID_SAMPLES, 0, none, STID_MAX_BATCH + 1, body) == 0, "a SAMPLES body of 39");
+        CHECK(stid_pack_samples(STID_SAMPLES, 0, none, 1, body) == 5u + STID_SAMPLE_SIZE, "a SAMPLES body of 1");
+    }
 
     static char line[2 * MAX_CASE_BYTES + 64];
     static uint8_t wire[MAX_CASE_BYTES];

@@ -260,6 +260,8 @@ def build_cases():
            [good_a], {"length": 1}, "26-byte records under version 1")
     broken("bad_length4", wire(frame_bytes(SAMPLES4, 21, 6000, samples_body(0, s1))) + wa, [good_a],
            {"length": 1}, "a 26-byte record in a SAMPLES4 frame (5 + 44 n expected)")
+    broken("samples_n0", wire(frame_bytes(SAMPLES, 21, 6000, samples_body(0, s10[:0]))) + wa, [good_a],
+           {"length": 1}, "a SAMPLES frame of no records: n is 1 to 38")
     broken("short", wire(b"\x01\x02\x03") + wa, [good_a], {"short": 1}, "shorter than header + CRC")
     broken("bad_cobs", bytes([0x09, 0x41, 0x42, 0x00]) + wa, [good_a], {"cobs": 1},
            "a COBS code byte that points past the end of the frame")
