@@ -306,7 +306,8 @@ class Logger:
             raise NoHelloError(
                 f"the run ended without a HELLO from the board ({stats['samples']} samples in {self.path}; "
                 f"rejected frames: {errs or 'none'}), so their ADC scale is unknown: run "
-                f"'stid repair {self.path} --hello-from EARLIER.mcap' with a log of the same board, or log again")
+                f"'stid repair {self.path} --hello-from EARLIER.mcap' with a log of the same board, or --hello-from "
+                f"V.toml with a vehicle file whose [board] table declares it (docs/hello_in_vehicle_file.md), or log again")
         return stats
 
     def _warn(self, rec: Recorder, event: str, text: str) -> None:
