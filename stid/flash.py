@@ -332,7 +332,12 @@ def plan_script(board: str, port: str | None, build_dir: Path, rate_hz: int, bat
              f"# link: {budget}", "set -e",
              'fail() { echo "stid flash: $*" >&2; exit 1; }',
              "# what the board printed, without its carriage returns",
-             'ask() { answer=$("$@"); answer=$(printf \'%s\\n\' "$answer" | tr -d \'\\r\'); printf \'%s\\n\' "$answer"; }',
+             # (under set -e a failed command would end the script in its own words alone: say what stid
+             # flash says then)
+             'ask() { answer=$("$@" 2>&1) || fail "\'$(basename "$1") $2 $3\' failed ($(printf \'%s\\n\' "$answer" | '
+             'tail -n 1)). Is the board plugged in and the port right? Try --port /dev/ttyACM0. If the app runs and '
+             'does not answer, see firmware/README.md, \'Recovery\'."; answer=$(printf \'%s\\n\' "$answer" | '
+             'tr -d \'\\r\'); printf \'%s\\n\' "$answer"; }',
              'sha() { if command -v sha256sum >/dev/null; then sha256sum "$1"; else shasum -a 256 "$1"; fi | cut -d" " -f1; }',
              shlex.join(["mkdir", "-p", str(build_dir)])]
     if not port:

@@ -308,6 +308,20 @@ def test_the_printed_plan_checks_the_boards_answers_as_stid_flash_does(board, tm
     assert board.files() == ["main.py"] and [c.split()[0] for c in board.calls()] == ["exec"]
 
 
+def test_the_printed_plan_without_a_board_says_what_stid_flash_says(board, tmp_path, capsys):
+    """No board plugged in: the script stopped under `set -e` inside its probe with mpremote's
+    'no device found' alone, where stid flash says what to do."""
+    build = tmp_path / "build"
+    assert stid_main(["flash", "--board", "pico", "--dry-run", "--build-dir", str(build)]) == 0
+    (tmp_path / "plan.sh").write_text(capsys.readouterr().out)
+    (tmp_path / "mpremote").write_text("#!/bin/sh\necho 'mpremote: no device found' >&2\nexit 1\n")
+    proc = subprocess.run(["sh", str(tmp_path / "plan.sh")], capture_output=True, text=True)
+    assert proc.returncode != 0, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("stid flash: 'mpremote connect auto' failed (mpremote: no device found)"), proc.stderr
+    assert "Is the board plugged in" in last and "--port" in last, proc.stderr
+
+
 def test_the_printed_plan_stops_on_a_copy_that_differs_from_the_build(board, tmp_path, capsys):
     build = tmp_path / "build"
     assert stid_main(["flash", "--board", "pico", "--dry-run", "--build-dir", str(build)]) == 0
