@@ -10,6 +10,7 @@ would give.
 
 import dataclasses
 import math
+import re
 import subprocess
 from pathlib import Path
 
@@ -172,7 +173,8 @@ def test_a_dead_time_the_model_lacks_is_seen_and_held_by_the_intervals(tmp_path)
     res = fit([run], vehicle, "bicycle+actuator_lag", "time")
     delay, se = res.extra["delay_seen_ms"]
     assert abs(delay - 2.0) < 0.5 and se < 0.1, (delay, se)  # (the first-order lag takes a little of it)
-    assert "answer the steer 2." in res.interval and "later than the model has them" in res.interval, res.interval
+    assert re.search(r"answer the steer (1\.9\d|2\.\d\d) ms", res.interval), res.interval
+    assert "later than the model has them" in res.interval, res.interval
     got = dict(zip(res.names, zip(res.values, res.ci95)))
     assert got["Iz"][0] > 1.05 * rd.IZ, got["Iz"]  # the answer without the delay is off ...
     for name, truth in (("Cf", rd.CF), ("Cr", rd.CR), ("Iz", rd.IZ)):
@@ -272,12 +274,60 @@ def test_a_slow_imus_run_is_driven_by_the_command_as_the_servo_got_it(imu_hz, of
     d = rd.drive(duration=40.0, imu_hz=imu_hz, imu_offset_ms=offset_ms, servo_tau=0.05, seed=1)
     vehicle = _vehicle(tmp_path)
     (run,) = load_file(rd.write_bag(d, tmp_path / "run", rd.Layout()), vehicle)
-    assert run.fine == round(200 / run.fs) >= 4  # (30 Hz: every 33rd ms of the simulated car's 1 kHz)
+    # (near 200 Hz; near 1 kHz where the command's steps fall at one point of the IMU's period, as its
+    # 50 Hz do in a 50 Hz IMU's on the bag's one clock: stid.ros.to_run.LOCKED_FS)
+    locked = "fall at one point of the IMU's" in " ".join(run.meta["notes"])
+    assert run.fine == round((1000 if locked else 200) / run.fs) >= 4 and locked == (imu_hz == 50)
     res = fit([run], vehicle, "bicycle+actuator_lag", "time")
     got = dict(zip(res.names, zip(res.values, res.ci95)))
     for name, truth in (("Cf", rd.CF), ("Cr", rd.CR), ("Iz", rd.IZ), ("tau_steer", 0.05)):
         value, (lo, hi) = got[name]
         assert abs(value / truth - 1) < 0.005 and lo <= truth <= hi, (name, got[name], truth)
+
+
+@pytest.mark.parametrize("period_ms", [20, 21])
+def test_a_command_on_the_imus_clock_drives_the_models_finely(period_ms, tmp_path):
+    """A command on the 200 Hz IMU's clock (a simulator's bag: one 1 kHz clock for the physics, the
+    IMU and the command) steps at one point of the IMU's period (every 20 ms) or at a few (every
+    21 ms: 0-4 ms after a sample, one step in five on a sample's instant). On the IMU's grid each
+    step is read early or late by its point's part of a period: a trial user's exact bags gave
+    Cf -1.0%, Cr -1.5%, Iz -1.1% (intervals missing Cr and Iz), and this one Cf +1.2% (its interval
+    missing it). Such a run drives the models near 1 kHz, and says so; a step stamped at a sample's
+    instant, which no grid can place (seen by that sample or not), is warned of."""
+    from stid.fit.fitting import fit
+
+    d = rd.drive(duration=40.0, imu_hz=200, imu_offset_ms=2, cmd_hz=1000 / period_ms, seed=3)
+    vehicle = _vehicle(tmp_path)
+    (run,) = load_file(rd.write_bag(d, tmp_path / "run", rd.Layout()), vehicle)
+    assert "fall at one point of the IMU's" in " ".join(run.meta["notes"]) and run.fine == 5
+    on_samples = [w for w in run.meta.get("warnings", []) if "stamped at an IMU sample's instant" in w]
+    if period_ms == 21:  # (a step stamped at a sample's instant: seen by it or not, no grid can tell)
+        assert on_samples and on_samples[0].startswith("20% of"), run.meta.get("warnings")
+        return
+    assert not on_samples, on_samples
+    res = fit([run], vehicle, "bicycle", "time")
+    for name, truth in (("Cf", rd.CF), ("Cr", rd.CR), ("Iz", rd.IZ)):
+        lo, hi = res.interval_of(name)
+        assert lo <= truth <= hi and abs(res.value(name) / truth - 1) < 0.005, (name, res.value(name), lo, hi, truth)
+
+
+def test_a_command_on_a_clock_of_its_own_stays_on_the_imus_grid():
+    """Steps whose phase in the IMU's period runs through every value (two clocks: the errors of the
+    IMU's grid average out, as a trial user's bags on drifting clocks showed) are not driven finely;
+    steps at one phase, or at a few, are."""
+    from stid.ros.message_types import ACKERMANN
+    from stid.ros.to_run import _steps_in_phase
+
+    choice = type("Choice", (), {"steering_type": ACKERMANN})()
+    rng = np.random.default_rng(0)
+    n = 2000
+    command = {"drive.steering_angle": rng.standard_normal(n)}
+    imu_line = (0.0, 0.005, 0)
+    own_clock = np.arange(n) * 0.02 * (1 + 37e-6) + 0.0013  # a 50 Hz clock 37 ppm off the IMU's
+    assert _steps_in_phase(own_clock, command, choice, imu_line, 200.0) is None
+    assert _steps_in_phase(np.sort(rng.uniform(0, 40, n)), command, choice, imu_line, 200.0) is None
+    assert _steps_in_phase(np.arange(n) * 0.02 + 0.0017, command, choice, imu_line, 200.0) == 1.0
+    assert _steps_in_phase(np.arange(n) * 0.021 + 0.002, command, choice, imu_line, 200.0) >= 0.5
 
 
 def test_an_imu_whose_stamps_jitter_keeps_its_own_instants(tmp_path):
@@ -402,23 +452,30 @@ def test_a_twist_in_the_worlds_frame_is_the_speed_forward_not_reversing(drive, t
 
 def test_ros2_and_ros1_fit_as_the_contract_csv(drive, contract, plain_bag, tmp_path):
     """Same parameters from the bags (the rosbag2 directory, its .mcap file, a ROS 1 bag with
-    the IMU turned) as from the contract CSV, within a tenth of their standard error; and
-    near the truth of the physics that made them."""
+    the IMU turned), within a tenth of their standard error; near the truth of the physics that
+    made them, and nearer than the contract CSV of the same drive. The bags' command steps fall
+    at one point of the IMU's period (one clock, as in a simulator), and the bags drive the
+    models at 1 kHz (stid.ros.to_run.LOCKED_FS); a CSV holds the command at the IMU's instants
+    only, and its model sees every step early by the same part of a period (Cf +1.2%)."""
     from stid.fit.fitting import fit
 
     vehicle = _vehicle(tmp_path)
     turned = _vehicle(tmp_path / "..", '[ros]\nimu_axes = ["y", "-x", "z"]\n')
     bag2 = plain_bag
     bag1 = rd.write_bag(drive, tmp_path / "run1.bag", rd.Layout(imu_to_body=("y", "-x", "z")), ros1=True)
-    ref = fit([contract], vehicle, "bicycle", "time", intervals="noise")
+    csv = fit([contract], vehicle, "bicycle", "time", intervals="noise")
+    truth = {"Cf": rd.CF, "Cr": rd.CR, "Iz": rd.IZ}
+    ref = None
     for path, veh in ((bag2, vehicle), (rd.ros2_mcap(bag2), vehicle), (bag1, turned)):
         res = fit(load_file(path, veh), veh, "bicycle", "time", intervals="noise")
-        assert res.names == ref.names
-        for name, v, v_ref, se in zip(res.names, res.values, ref.values, ref.stderr):
-            assert abs(v - v_ref) < 0.1 * se, f"{path.name}: {name} {v:.4g} vs {v_ref:.4g} from the CSV (se {se:.2g})"
-    truth = {"Cf": rd.CF, "Cr": rd.CR, "Iz": rd.IZ}
-    for name, v in zip(ref.names, ref.values):
-        # the model sees the command's 50 Hz steps through 200 Hz samples: ~1% off, measured
+        ref = ref or res
+        assert res.names == ref.names == csv.names
+        for name, v, v_ref, se, v_csv in zip(res.names, res.values, ref.values, ref.stderr, csv.values):
+            assert abs(v - v_ref) < 0.1 * se, f"{path.name}: {name} {v:.4g} vs {v_ref:.4g} (se {se:.2g})"
+            assert abs(v / truth[name] - 1) < 0.004, (path.name, name, v, truth[name])
+            assert abs(v - truth[name]) < abs(v_csv - truth[name]), (path.name, name, v, v_csv, truth[name])
+    for name, v in zip(csv.names, csv.values):
+        # the CSV's model sees the command's 50 Hz steps through 200 Hz samples: ~1% off, measured
         assert v == pytest.approx(truth[name], rel=0.05)
 
 

@@ -40,6 +40,18 @@ MAX_BAD_SHARE = 0.5  # of a topic's messages not a number: beyond it, not a driv
 # outputs stay at the IMU's own instants.
 FINE_BELOW_HZ = 90.0
 FINE_FS = 200.0  # the time-domain fit's own rate (stid.fit.dataset.FIT_FS)
+# A command whose steps fall at one point of every IMU period (one clock for both, as in a
+# simulator) puts the same sub-sample error into every step, where on two clocks the errors average
+# out. The period means put each step's integral at its time, not its instant: an output that
+# answers the steer at once (ay through the front tyre) and is sampled at an instant reads the step
+# early or late by a fixed part of a period. On a trial user's exact bags (200 Hz IMU sampled at an
+# instant, 50 Hz command 1.7 ms after it) Cf -1.0%, Cr -1.5%, Iz -1.1%, intervals missing Cr and
+# Iz; driven at 1 kHz: +0.02%, -0.16%, +0.01%. Steps this concentrated in phase (the mean resultant
+# length of their phases in the IMU period; spread phases give ~1/sqrt(steps)) drive the models on
+# a grid near LOCKED_FS. (An IMU that averages over its period reads -1% so, within its intervals.)
+LOCKED_SHARE = 0.5
+LOCKED_FS = 1000.0
+PHASE_BINS, FEW_PHASES = 50, 5  # the steps in the 5 fullest of 50 bins of phase: 10% if spread evenly
 
 
 def load_bag(path, vehicle) -> list[Run]:
@@ -74,6 +86,19 @@ def load_bag(path, vehicle) -> list[Run]:
                         "(noise, the motor's vibration) folds into the run; leave rate_hz out to use the IMU's own "
                         "rate")
     fine = int(round(FINE_FS / rate)) if rate < FINE_BELOW_HZ else 1
+    locked = _steps_in_phase(times[choice.steering], cols[choice.steering], choice, imu_line, rate)
+    if locked is not None and fine * rate < 0.9 * LOCKED_FS:
+        fine = int(round(LOCKED_FS / rate))
+        notes.append(f"the steering command's steps fall at one point of the IMU's {rate:.0f} Hz period, or at a few "
+                     f"({100 * locked:.0f}% of them in {FEW_PHASES} of {PHASE_BINS} parts of it: one clock for both, as "
+                     "in a simulator), so on the IMU's grid each would be read early or late by its point's part of a "
+                     "period")
+    on_samples = _steps_on_samples(times[choice.steering], cols[choice.steering], choice, imu_line, rate)
+    if on_samples >= ON_SAMPLES_SAID:
+        warnings.append(f"{100 * on_samples:.0f}% of the steering command's steps are stamped at an IMU sample's "
+                        "instant (one clock for both, as in a simulator): whether that sample saw the step the stamps "
+                        "cannot tell, and the models take half of it there (an exact single-track bag with one step "
+                        "in five so read Cf +1.1%, its interval missing the truth); stamp the command when it acts")
     sig, tilt = _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warnings, fine)
     sensors = {t: times[t] for t in (choice.imu, choice.odometry)}
     valid = _measured(grid, sensors)
@@ -267,6 +292,34 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
         notes.append(f"the steering command drives the models at {fine * rate:.0f} Hz, {fine} steps per IMU "
                      f"sample: at the IMU's {rate:.0f} Hz its steps would spread over a sample period")
     return sig, tilt
+
+
+def _steps_in_phase(st_t, command_cols, choice, imu_line, rate) -> float | None:
+    """How concentrated in phase within the grid's period the command's steps are (the mean
+    resultant length of their phases, 0-1), when it is LOCKED_SHARE or more and the steps are
+    enough to tell (else None). The grid is the IMU's instants (imu_line: its start and period)."""
+    command = command_cols["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
+    steps = np.flatnonzero(np.diff(command) != 0) + 1
+    if len(steps) < 20:
+        return None
+    phase = (st_t[steps] - imu_line[0]) * rate % 1.0
+    counts = np.sort(np.histogram(phase, bins=PHASE_BINS, range=(0.0, 1.0))[0])[::-1]
+    share = float(counts[:FEW_PHASES].sum() / len(phase))
+    return share if share >= LOCKED_SHARE else None
+
+
+ON_SAMPLES_SAID = 0.05  # of the steps stamped at a sample's instant: said (a clock of its own puts ~0% there)
+ON_SAMPLE_S = 1e-6
+
+
+def _steps_on_samples(st_t, command_cols, choice, imu_line, rate) -> float:
+    """The share of the command's steps stamped within ON_SAMPLE_S of an IMU sample's instant."""
+    command = command_cols["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
+    steps = np.flatnonzero(np.diff(command) != 0) + 1
+    if len(steps) < 20:
+        return 0.0
+    off = (st_t[steps] - imu_line[0]) * rate % 1.0
+    return float(np.mean(np.minimum(off, 1.0 - off) < ON_SAMPLE_S * rate))
 
 
 def _same_map(raw: np.ndarray, mapped: np.ndarray, x: np.ndarray) -> np.ndarray:
