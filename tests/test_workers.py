@@ -9,8 +9,11 @@ import subprocess
 import sys
 import time
 
+# (each script first takes Ctrl-C as a terminal's foreground command does: a suite started as a
+# shell's background job hands its children SIGINT ignored, and Python then leaves it so)
 _SCRIPT = r"""
 import os, signal, sys, time
+signal.signal(signal.SIGINT, signal.default_int_handler)
 from stid.workers import worker_pool
 
 try:
@@ -162,7 +165,8 @@ def test_a_pool_ended_with_a_cancelled_job_waiting_ends_without_a_traceback():
 
 
 _LOST_IN_A_FORK = r"""
-import os, sys
+import os, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)
 lost = []
 
 def lose():  # a Ctrl-C that lands in an after-fork handler (logging's, in the suite), once
