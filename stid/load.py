@@ -185,8 +185,15 @@ def load_csv(path, vehicle: Vehicle | None = None) -> Run:
     warnings = list(steer_warnings)
     dt = np.diff(t)
     if np.any(dt <= 0):
-        raise InputError(f"{path}: time 't' is not increasing (row {int(np.flatnonzero(dt <= 0)[0]) + 2}); "
-                         "sort the rows or remove duplicates")
+        k = int(np.flatnonzero(dt <= 0)[0])
+        where = f"at data row {k + 2} (line {k + 3} of the file, after its header)"
+        if dt[k] == 0:
+            raise InputError(f"{path}: time 't' repeats {where}: a row written twice? remove the duplicates")
+        med = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
+        if med > 0 and -dt[k] > 10 * med:  # (sorting would interleave two runs)
+            raise InputError(f"{path}: time 't' goes back {-dt[k]:.3g} s {where}: a clock reset, or two logs joined? "
+                             "split the file there into two runs")
+        raise InputError(f"{path}: time 't' goes back {where}: rows out of order? sort them by 't'")
     input_checks.check_time_steps(str(path), t)
     med = float(np.median(dt))
     valid = ~unknown["rows"] if unknown["rows"].any() else None

@@ -237,3 +237,21 @@ def test_a_misspelt_model_is_heard_of_before_the_runs_are_read(tmp_path):
         assert r.returncode == 2, r.stderr
         assert r.stderr.strip().splitlines() == [r.stderr.strip().splitlines()[-1]], r.stderr  # (no note first)
         assert "did you mean 'bicycle'" in r.stderr or "unknown effect 'lagg'" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("case, words", [("duplicate", "repeats at data row 1001 (line 1002"),
+                                         ("clock reset", "goes back 0.5 s at data row 1001"),
+                                         ("swapped rows", "out of order? sort them")])
+def test_time_that_does_not_increase_is_named_by_what_it_looks_like(tmp_path, case, words):
+    """Every time step back was told to 'sort the rows or remove duplicates': wrong advice for a
+    clock reset or two logs joined (sorting interleaves two runs), and the row was the data row
+    without saying so."""
+    cols = good_cols()
+    t = cols["t"]
+    if case == "duplicate":
+        t[1000] = t[999]
+    elif case == "clock reset":
+        t[1000:] -= 0.51  # (10 ms steps: 0.5 s back at the join)
+    else:
+        t[999], t[1000] = t[1000], t[999]
+    assert_fails(stid("fit", write_csv(tmp_path / "a.csv", cols), "--vehicle", VEHICLE), words)

@@ -27,5 +27,9 @@ def add_identifiability_warnings(result, model, stretches) -> None:
             # judged as printed ("strongly correlated: Cf-Cr +0.98" rounds to two places): 0.9798
             # printed as +0.98 without this warning read as a contradiction
             if round(abs(c[i, j]), 2) >= 0.98:
+                # (each interval holds what the correlation leaves: a trial user read "not each one"
+                # beside Cf and Cr at +-0.2%, both holding the truth, and did not know which to believe)
                 result.warn(f"{result.names[i]} and {result.names[j]} are almost fully correlated "
-                            f"({c[i, j]:+.3f}): the data determine a combination of them, not each one")
+                            f"({c[i, j]:+.3f}): the data determine a combination of them far better than each "
+                            "one; each interval allows for that, but an error in one moves the other with it "
+                            "(more speeds or steer frequencies separate them)")
