@@ -328,16 +328,10 @@ def split_bag(src: Path, dst_dir: Path, pieces: int = 3, chunk_size: int = 64 * 
         with open(path, "wb") as out:
             w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
             w.start(profile=profile, library="libmcap-like (stid tests)")
-            schemas, channels = {}, {}
+            copy = _copier(w)
             for schema, channel, msg in msgs:
-                if not lo <= msg.log_time < hi:
-                    continue
-                if schema.id not in schemas:
-                    schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
-                if channel.id not in channels:
-                    channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
-                                                              schemas[schema.id], channel.metadata)
-                w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+                if lo <= msg.log_time < hi:
+                    copy(schema, channel, msg)
             w.finish()
         files.append(path)
     return files
@@ -366,13 +360,24 @@ def as_libmcap_writes(src: Path, dst: Path, chunk_size: int = 768 * 1024, profil
         w = Writer(out, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         w.start(profile=reader.get_header().profile if profile is None else profile,
                 library="libmcap-like (stid tests)")
-        schemas, channels = {}, {}
+        copy = _copier(w)
         for schema, channel, msg in reader.iter_messages(log_time_order=False):
-            if schema.id not in schemas:
-                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
-            if channel.id not in channels:
-                channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
-                                                          schemas[schema.id], channel.metadata)
-            w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+            copy(schema, channel, msg)
         w.finish()
     return dst
+
+
+def _copier(w):
+    """``copy(schema, channel, msg)``: a message read from one MCAP written by ``w``, its schema and
+    channel registered there the first time."""
+    schemas, channels = {}, {}
+
+    def copy(schema, channel, msg):
+        if schema.id not in schemas:
+            schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+        if channel.id not in channels:
+            channels[channel.id] = w.register_channel(channel.topic, channel.message_encoding,
+                                                      schemas[schema.id], channel.metadata)
+        w.add_message(channels[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+
+    return copy
