@@ -159,8 +159,10 @@ def _where_it_vanishes(model, name: str, value: float) -> bool:
     return (zero <= lo and abs(value - lo) <= abs(value - hi)) or (zero >= hi and abs(value - hi) < abs(value - lo))
 
 
-def disagreements(parts: dict, names) -> list:
-    """Parameters that are not one value across a partition's groups: (partition, name, text)."""
+def disagreements(parts: dict, names, material: float = MATERIAL) -> list:
+    """Parameters that are not one value across a partition's groups: (partition, name, text).
+    ``material``: the share of the larger value they must differ by too (0: beyond their
+    intervals is enough)."""
     out = []
     for kind, groups in parts.items():
         for n in names:
@@ -175,7 +177,7 @@ def disagreements(parts: dict, names) -> list:
                 for j in range(i + 1, len(vals)):
                     hi_, hj = Z99_OVER_Z95 * vals[i][3], Z99_OVER_Z95 * vals[j][3]  # (half-widths)
                     diff = abs(vals[i][1] - vals[j][1])
-                    if diff > np.hypot(hi_, hj) and diff > MATERIAL * max(abs(vals[i][1]), abs(vals[j][1])):
+                    if diff > np.hypot(hi_, hj) and diff > material * max(abs(vals[i][1]), abs(vals[j][1])):
                         bad = True
             if bad:
                 unit = unit_suffix(groups[0].result.units.get(n, ""))
