@@ -1,6 +1,7 @@
 """Contract tests over every registered effect (a new effect is tested the moment it
 is registered), and a user-defined effect written as docs/writing_an_effect.md shows."""
 
+import os
 import re
 
 import numpy as np
@@ -282,8 +283,71 @@ def test_a_broken_user_effect_is_named_with_its_file_before_any_data_work():
 
     register_effect(Broken)
     try:
-        with pytest.raises(InputError, match=r"your effect broken_for_the_test \(.*test_effects_contract\.py\) "
-                                             r"fails .*nosuch_output"):
+        with pytest.raises(InputError, match=r"your effect broken_for_the_test \(.*test_effects_contract\.py\): "
+                                             r"its apply\(\) raised .*nosuch_output"):
             Model("bicycle+broken_for_the_test", VEHICLE)
     finally:
         unregister_effect("broken_for_the_test")
+
+
+def _user_effect(tmp_path, body: str, name="users_downforce"):
+    """A user's effect file (as docs/writing_an_effect.md writes one): a body load whose force
+    grows with vx^2 unless ``body`` says otherwise."""
+    path = tmp_path / f"{name}.py"
+    path.write_text(
+        "from stid.models.effect import BodyLoad, Effect, register_effect\n"
+        "from stid.models.params import Param\n\n\n" + body)
+    return path
+
+
+DOWNFORCE = """@register_effect
+class Downforce(Effect):
+    name = "users_downforce"
+    stage = {stage!r}
+    physics = "downforce raises both axles' stiffness with vx^2"
+    signature = "the stiffnesses move with speed"
+    params = (Param("k_df", {unit!r}, "stiffness gain per (m/s)^2", {init}, 0.0, 0.05, log=False, zero=0.0),)
+
+    def body_loads(self, p, ctx):
+        if ctx.vx > {breaks_above}:
+            {breaks}
+        k = p["k_df"] * ctx.vx ** 2
+        return BodyLoad(Fy={{"vy": -k * 100.0}}, Mz={{"r": -k * 10.0}})
+"""
+
+
+@pytest.mark.parametrize("case, words", [
+    ("raises at speed", r"its body_loads\(\) raised ValueError: too fast at vx = "),
+    ("nan at speed", r"its body_loads\(\) returned nan or inf at vx = "),
+    ("stage without its method", r"changing its parameters \(k_df\) changes nothing in the model: is its stage"),
+    ("no unit", r"parameter k_df has no unit"),
+    ("start outside bounds", r"parameter k_df starts at 0.1, outside its bounds"),
+    ("no register", r"registers no effect: decorate its Effect class with @register_effect"),
+])
+def test_a_users_effect_that_breaks_the_contract_is_named_in_one_line(tmp_path, monkeypatch, case, words):
+    """What a trial user's effect files did, each now one line naming the file: an error or a nan at
+    a speed past the defaults' check (a traceback, or 'Array must not contain infs or NaNs' from deep
+    in a fit), a stage whose method it does not define (its parameter 'not determined': taken as no
+    downforce), no unit, a start outside its bounds, a file whose class was never registered
+    (diagnose then said the catalogue lacks an effect, as if the user's had been tried)."""
+    import subprocess
+
+    from conftest import tool
+
+    spec = dict(stage="body", unit="s^2/m^2", init=0.01, breaks_above=1e9, breaks="pass")
+    spec.update({"raises at speed": dict(breaks_above=3.0, breaks="raise ValueError('too fast')"),
+                 "nan at speed": dict(breaks_above=3.0, breaks="return BodyLoad(Fy={'vy': float('nan')})"),
+                 "stage without its method": dict(stage="output"),
+                 "no unit": dict(unit=""),
+                 "start outside bounds": dict(init=0.1)}.get(case, {}))
+    body = DOWNFORCE.format(**spec)
+    if case == "no register":
+        body = body.replace("@register_effect\n", "")
+    path = _user_effect(tmp_path, body)
+    run = REPO / "tests" / "fixtures" / "real" / "frictionmaps" / "ds3.csv"
+    r = subprocess.run([tool("stid"), "fit", str(run), "--vehicle", str(run.parent / "vehicle.toml"),
+                        "--model", "bicycle+users_downforce"], capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "STID_EFFECTS": str(path)})
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    said = [line for line in r.stderr.splitlines() if line.startswith("stid fit: error:")]
+    assert len(said) == 1 and re.search(words, said[0]) and str(path) in said[0], r.stderr[-2000:]

@@ -177,8 +177,72 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
         # (the same class loaded again, a module reloaded, is not a clash)
         raise ValueError(f"an effect named {cls.name!r} already exists ({there.__module__}.{there.__qualname__}): "
                          f"give {cls.__qualname__} another name")
+    if not cls.__module__.startswith("stid.effects."):
+        _guard_hooks(cls)
     _REGISTRY[cls.name] = cls
     return cls
+
+
+HOOKS = ("apply", "tyre_options", "body_loads", "force_correction", "steer_map")
+
+
+def _finite(x) -> bool:
+    """Whether what a hook returned holds no nan or inf (a system, a body load, options, arrays)."""
+    if x is None:
+        return True
+    if isinstance(x, BodyLoad):
+        return all(np.isfinite(float(v)) for d in (x.Fy, x.Mz) for v in d.values())
+    if isinstance(x, dict):
+        return all(_finite(v) for v in x.values())
+    if isinstance(x, (tuple, list)):
+        return all(_finite(v) for v in x)
+    if hasattr(x, "A") and hasattr(x, "D"):  # a LinSys
+        return all(np.all(np.isfinite(m)) for m in (x.A, x.B, x.C, x.D))
+    try:
+        return bool(np.all(np.isfinite(np.asarray(x, float))))
+    except (TypeError, ValueError):
+        return True
+
+
+def _guard_hooks(cls) -> None:
+    """A user's effect's methods, each wrapped so that an exception in it, or a nan or inf it
+    returns, ends in one line naming the effect, its file, the method, the speed and the
+    parameters (a trial user's raised at 5.5 m/s only, past the check at the defaults, and came
+    out as a traceback, or as 'Array must not contain infs or NaNs' from deep in a fit)."""
+    import functools
+
+    from stid.errors import StidError
+
+    for hook in HOOKS:
+        fn = cls.__dict__.get(hook)
+        if fn is None or getattr(fn, "_stid_guarded", False):
+            continue
+
+        def guarded(self, *args, _fn=fn, _hook=hook):
+            ctx = next((a for a in args if isinstance(a, Context)), None)
+            p = next((a for a in args if isinstance(a, dict)), {})
+            try:
+                out = _fn(self, *args)
+            except StidError:
+                raise
+            except Exception as e:
+                raise InputError(_hook_words(self, _hook, ctx, p, f"raised {type(e).__name__}: {e}")) from None
+            if not _finite(out):
+                raise InputError(_hook_words(self, _hook, ctx, p, "returned nan or inf"))
+            return out
+
+        guarded._stid_guarded = True
+        setattr(cls, hook, functools.wraps(fn)(guarded))
+
+
+def _hook_words(effect, hook, ctx, p, what) -> str:
+    own = {q.name: p.get(q.name) for q in effect.params if q.name in p}
+    source = getattr(sys.modules.get(type(effect).__module__), "__file__", None) or type(effect).__module__
+    at = f" at vx = {ctx.vx:.3g} m/s" if ctx is not None else ""
+    return (f"your effect {effect.name} ({source}): its {hook}() {what}{at} with "
+            + (", ".join(f"{k} = {v:.4g}" for k, v in own.items()) or "no parameters")
+            + ": it must give finite values at every forward speed (the model is built at speeds around the "
+              "runs') and every parameter value within its bounds (docs/writing_an_effect.md)")
 
 
 def unregister_effect(name: str) -> None:
@@ -210,12 +274,20 @@ def _load_effect_file(path: Path) -> None:
     spec = importlib.util.spec_from_file_location(f"stid_user_effect_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # (as an import would: its classes can say which file they are from)
+    before = set(_REGISTRY)
     try:
         spec.loader.exec_module(module)
     except Exception as e:  # the user's code: say where, in one line
         sys.modules.pop(spec.name, None)
         raise InputError(f"STID_EFFECTS: {path} failed to load ({type(e).__name__}: {e}); fix the file "
                          "or remove it from STID_EFFECTS") from None
+    if set(_REGISTRY) == before and not any(getattr(c, "__module__", None) == spec.name for c in _REGISTRY.values()):
+        # (diagnose then told a trial user to write an effect the catalogue lacks, as if theirs had failed)
+        truth = any(hasattr(module, f) for f in ("sensor_signals", "body_loads", "steer_angle"))
+        raise InputError(f"STID_EFFECTS: {path} registers no effect: decorate its Effect class with "
+                         "@register_effect (docs/writing_an_effect.md)"
+                         + ("; it looks like a simulator's truth-side file, which is for stid-sim --effect-file"
+                            if truth else ""))
 
 
 def available_effects() -> dict[str, type[Effect]]:

@@ -112,7 +112,22 @@ class Model:
 
         from stid.errors import StidError
 
-        p, ctx = self.defaults(), self.context(5.0)
+        mine = [e for e in self.effects if not type(e).__module__.startswith("stid.effects.")]
+
+        def where(e):
+            return f"{e.name} ({getattr(sys.modules.get(type(e).__module__), '__file__', None) or type(e).__module__})"
+
+        try:
+            p, ctx = self.defaults(), self.context(5.0)
+            for e in mine:
+                for q in e.params:
+                    self.bounds(q.name)
+        except StidError:
+            raise
+        except Exception as ex:  # (a bound or start that is no number: None, a string)
+            raise InputError(f"your effect {', '.join(where(e) for e in mine)}: a parameter's start or bounds are "
+                             f"not numbers ({type(ex).__name__}: {ex}): give each Param numbers, or functions of "
+                             "the vehicle that return them") from None
         try:
             self.build(p, ctx.vx)
             for e in self._ordered:
@@ -121,12 +136,37 @@ class Model:
         except StidError:
             raise
         except Exception as ex:
-            mine = [e for e in self.effects if not type(e).__module__.startswith("stid.effects.")]
-            where = ", ".join(f"{e.name} ({getattr(sys.modules.get(type(e).__module__), '__file__', None) or type(e).__module__})"
-                              for e in mine)
-            raise InputError(f"your effect {where} fails when the model {self.name} is built at its defaults "
-                             f"({type(ex).__name__}: {ex}): fix it (docs/writing_an_effect.md lists what each "
-                             "stage's method may do)") from None
+            raise InputError(f"your effect {', '.join(where(e) for e in mine)} fails when the model {self.name} is "
+                             f"built at its defaults ({type(ex).__name__}: {ex}): fix it (docs/writing_an_effect.md "
+                             "lists what each stage's method may do)") from None
+        for e in mine:
+            for q in e.params:  # (the contract the catalogue's effects are tested for, on the user's own)
+                lo, hi = self.bounds(q.name)
+                if not q.unit.strip():
+                    raise InputError(f"your effect {where(e)}: parameter {q.name} has no unit: give it one (SI; "
+                                     "'1' for a pure number): it is printed with every value")
+                if not (np.isfinite(lo) and np.isfinite(hi) and lo <= p[q.name] <= hi):
+                    raise InputError(f"your effect {where(e)}: parameter {q.name} starts at {p[q.name]!r}, outside "
+                                     f"its bounds [{lo!r}, {hi!r}]: give finite bounds that hold the start")
+            if not e.maps_steer and not e.nonlinear and not self._moves(e, p, ctx.vx):
+                raise InputError(f"your effect {where(e)}: changing its parameters ({', '.join(q.name for q in e.params)}) "
+                                 f"changes nothing in the model: is its stage ({e.stage!r}) the one whose method it "
+                                 "defines ('body' for body_loads, 'tyre' for tyre_options, 'input' or 'output' for "
+                                 "apply; docs/writing_an_effect.md)?")
+
+    def _moves(self, e, p: dict, vx: float) -> bool:
+        """Whether the linear model's responses change with any of effect ``e``'s parameters (at
+        ``vx``, from the values ``p``, each moved a tenth of the way to a bound)."""
+        f = np.array([0.2, 1.0, 4.0])
+        base = self.freqresp(p, f, vx)
+        for q in e.params:
+            lo, hi = self.bounds(q.name)
+            for to in (hi, lo):
+                moved = dict(p, **{q.name: p[q.name] + 0.1 * (to - p[q.name])})
+                if moved[q.name] != p[q.name] and not np.allclose(self.freqresp(moved, f, vx), base,
+                                                                   rtol=1e-9, atol=1e-12):
+                    return True
+        return not e.params
 
     @property
     def name(self) -> str:
