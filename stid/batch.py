@@ -19,28 +19,50 @@ from stid.errors import InputError, StidError
 from stid.output_paths import refuse_existing
 
 
-def find_runs(pattern) -> list[str]:
-    """The runs at ``pattern`` (a directory or a glob; or a list of them: the files a shell expanded an
-    unquoted glob into, which argparse refused as "unrecognized arguments"), in the order their names
-    count: run_2 before run_10 (sorted as text, a trial's session 10 was drawn before sessions 1 and 2
-    on the drift plot)."""
-    if not isinstance(pattern, str):
-        if len(pattern) == 1:
-            return find_runs(pattern[0])
-        missing = [f for f in pattern if not Path(f).exists()]
-        if missing:
-            raise InputError(f"{missing[0]} does not exist")
-        return sorted((f for f in pattern if _is_run(Path(f))), key=_counted) or find_runs(pattern[0])
-    p = Path(pattern)
-    if not glob.has_magic(pattern) and not p.exists():
-        raise InputError(f"{pattern} does not exist: give a directory of runs or a glob like 'logs/*.mcap'")
-    if p.is_dir():
-        files = sorted((str(f) for f in p.iterdir() if _is_run(f)), key=_counted)
-    else:
-        files = sorted((f for f in glob.glob(pattern) if _is_run(Path(f))), key=_counted)
+def find_runs(pattern, skipped: list | None = None) -> list[str]:
+    """The runs named by ``pattern``: a directory (its runs), a glob (the runs it matches), a file
+    (itself, whatever it holds: a file named is tried, and fails as a row if it is no run), or a
+    list of them (several arguments, or the files a shell expanded an unquoted glob into), each
+    run once, in the order their names count: run_2 before run_10 (sorted as text, a trial's
+    session 10 was drawn before sessions 1 and 2 on the drift plot). ``skipped``: told what was
+    passed over (a directory's subdirectories and files that are no runs). Only the first of several
+    arguments was read before: a trial user's second directory of 13 runs was dropped, exit 0."""
+    patterns = [pattern] if isinstance(pattern, str) else list(pattern)
+    skipped = [] if skipped is None else skipped
+    files: dict[str, None] = {}
+    for pat in patterns:
+        if glob.has_magic(pat):
+            matches = sorted(glob.glob(pat), key=_counted)
+            if not matches:
+                raise InputError(f"nothing matches {pat!r}: give a directory of runs, the runs, or a glob like "
+                                 "'logs/*.mcap'")
+            for m in matches:
+                _add(Path(m), files, skipped, named=False)
+        elif not Path(pat).exists():
+            raise InputError(f"{pat} does not exist: give a directory of runs, the runs, or a glob like 'logs/*.mcap'")
+        else:
+            _add(Path(pat), files, skipped, named=True)
     if not files:
-        raise InputError(f"no .mcap, .bag or .csv runs (or ROS 2 bag directories) found at {pattern!r}")
-    return files
+        raise InputError(f"no .mcap, .bag or .csv runs (or ROS 2 bag directories) found at {', '.join(patterns)}"
+                         + (f" (passed over: {', '.join(skipped[:5])})" if skipped else ""))
+    return sorted(files, key=_counted)
+
+
+def _add(p: Path, files: dict, skipped: list, named: bool) -> None:
+    """``p``'s runs into ``files``: a run (or, ``named``, any file given by name) itself, a directory's
+    runs; what is passed over into ``skipped``."""
+    if _is_run(p) or (named and p.is_file()):
+        files.setdefault(str(p), None)
+    elif p.is_dir():
+        for f in sorted(p.iterdir(), key=lambda f: _counted(f.name)):
+            if _is_run(f):
+                files.setdefault(str(f), None)
+            elif f.is_dir():
+                skipped.append(f"{f}/ (a directory in it: name it too, or a glob like '{p}/*/*.mcap')")
+            elif not f.name.startswith("."):
+                skipped.append(f"{f} (not a run)")
+    else:
+        skipped.append(f"{p} (not a run)")
 
 
 def _counted(name: str) -> list:
@@ -65,6 +87,13 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
     try:
         vehicle = load_vehicle(vehicle_path)
         runs = load_file(path, vehicle)
+        from stid.fit.dataset import V_MOVING
+
+        if all(max(abs(float(v)) for v in (r.vx.min(), r.vx.max())) < V_MOVING for r in runs):
+            # (a session's calibration run: every normal session directory made batch exit 3)
+            row.update(error="", skipped="stands still throughout: nothing to fit (stid calibrate takes it)",
+                       seconds=time.perf_counter() - t0)
+            return row
         from stid.fit.fitting import fit
 
         res = fit(runs, vehicle, model, method)
@@ -152,6 +181,28 @@ def run_batch(files, vehicle_path, model="bicycle", method="time", workers=None,
     return rows
 
 
+def _check_writable(out: Path) -> None:
+    """That the table can be written where asked, and in its format (InputError if not)."""
+    import tempfile
+
+    parent = out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent  # (the first that exists: write_table makes the rest)
+    if not parent.is_dir():
+        raise InputError(f"-o {out}: {parent} is not a directory; give an output in a directory you can write to")
+    try:  # (access() says yes to root for /proc: a file made and removed is the test)
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=".stid-batch-"):
+            pass
+    except OSError as e:
+        raise InputError(f"-o {out}: cannot write in {parent} ({e.strerror or e}); give an output in a directory "
+                         "you can write to") from None
+    if out.suffix.lower() == ".parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise InputError("writing Parquet needs pyarrow (pip install pyarrow); or give -o RESULTS.csv") from None
+
+
 def write_table(rows, out: Path) -> None:
     import pandas as pd
 
@@ -218,7 +269,11 @@ def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_di
     if Path(output).suffix.lower() not in (".csv", ".parquet"):  # before hours of fitting, not after
         raise InputError(f"-o {output}: the table is written as .csv or .parquet; give a name ending in one")
     refuse_existing([output, Path(output).with_suffix(".drift.png")], "stid batch", overwrite)
-    files = find_runs(pattern)
+    _check_writable(Path(output))  # before the fitting too: a trial user lost it to /proc/out.csv
+    skipped: list = []
+    files = find_runs(pattern, skipped)
+    for what in skipped:
+        print(f"note: passed over {what}", file=sys.stderr)
     if not Path(vehicle).exists():
         raise InputError(f"vehicle file {vehicle} does not exist")
     if workers is not None and workers < 1:
@@ -232,8 +287,11 @@ def batch_cli(pattern, vehicle, model, method, workers, scheduler, output, do_di
     write_table(rows, out)
     plot = drift_plot(rows, out.with_suffix(".drift.png"))
     failed = [r for r in rows if r["error"]]
-    print(f"{len(rows) - len(failed)} of {len(rows)} runs fitted; table {out}"
-          + (f"; drift plot {plot}" if plot else ""), file=sys.stderr)
+    still = [r for r in rows if r.get("skipped")]
+    print(f"{len(rows) - len(failed) - len(still)} of {len(rows)} runs fitted"
+          + (f", {len(still)} standing still throughout passed over ({', '.join(Path(r['run']).name for r in still[:3])}"
+             f"{' ...' if len(still) > 3 else ''})" if still else "")
+          + f"; table {out}" + (f"; drift plot {plot}" if plot else ""), file=sys.stderr)
     short = [r for r in rows if not r["error"] and r.get("below_floor")]
     if short:
         print(f"  {len(short)} of them far below their noise floor with {model} (the column below_floor): it "

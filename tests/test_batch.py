@@ -2,6 +2,7 @@
 
 import shutil
 import subprocess
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -71,7 +72,7 @@ def test_batch_says_a_misspelt_model_once_before_fitting_and_draws_every_paramet
 def test_batch_without_runs_fails_cleanly(tmp_path):
     r = subprocess.run([tool("stid"), "batch", str(tmp_path / "nothing*.mcap"), "--vehicle", VEHICLE],
                        capture_output=True, text=True)
-    assert r.returncode != 0 and "no .mcap, .bag or .csv runs" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode != 0 and "nothing matches" in r.stderr and "Traceback" not in r.stderr
     # a table format it does not write is refused before any fitting (it wrote CSV text as .xlsx)
     x = subprocess.run([tool("stid"), "batch", str(tmp_path), "--vehicle", VEHICLE, "-o", str(tmp_path / "t.xlsx")],
                        capture_output=True, text=True)
@@ -116,3 +117,36 @@ def test_a_glob_the_shell_expanded_is_taken_and_a_missing_directory_is_said(seas
     gone = subprocess.run([tool("stid"), "batch", str(tmp_path / "nosuchdir"), "--vehicle", VEHICLE, "-o",
                            str(tmp_path / "x.csv")], capture_output=True, text=True, timeout=60)
     assert gone.returncode == 2 and "nosuchdir does not exist" in gone.stderr, gone.stderr
+
+
+def test_every_argument_is_read_and_what_is_passed_over_is_said(season, simdir, tmp_path):
+    """A trial user's `stid batch day1/ day2/` read day1 alone (13 runs of day2 dropped, exit 0); two
+    quoted globs were 'does not exist'; a subdirectory and a file that is no run were passed over
+    without a word; a session's stand-still run (the one `stid calibrate` takes) made every normal
+    session's batch exit 3; and an output where nothing can be written was found after the fitting."""
+    from simdata import sim_run
+
+    day1, day2 = tmp_path / "day1", tmp_path / "day2"
+    day1.mkdir()
+    (day1 / "older").mkdir()
+    (day1 / "notes.txt").write_text("tyres new\n")
+    files = sorted(p for p in season.glob("*.mcap") if p.name != "broken.mcap")
+    shutil.copy(files[0], day1 / files[0].name)
+    shutil.copy(sim_run(simdir, "standstill", duration=4.0), day1 / "still.mcap")
+    shutil.copytree(season, day2, ignore=shutil.ignore_patterns("broken.mcap", files[0].name))
+    out = tmp_path / "all.csv"
+    r = subprocess.run([tool("stid"), "batch", str(day1), str(day2 / "*.mcap"), "--vehicle", VEHICLE, "-o", str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    df = pd.read_csv(out)
+    assert sorted(pd.Series(df["run"]).map(lambda p: p.rsplit("/", 1)[1])) == sorted([*(f.name for f in files),
+                                                                                     "still.mcap"])
+    still = df[df["run"].str.endswith("still.mcap")]
+    assert still["error"].isna().all() and "stands still throughout" in still["skipped"].iloc[0]
+    assert f"{len(files)} of {len(files) + 1} runs fitted, 1 standing still throughout passed over" in r.stderr
+    assert "passed over " + str(day1 / "older") + "/" in r.stderr and str(day1 / "notes.txt") + " (not a run)" in r.stderr
+    for bad, words in ((tmp_path / "notes.txt" / "x.csv", "is not a directory"), (Path("/proc/x.csv"), "cannot write")):
+        (tmp_path / "notes.txt").write_text("")
+        w = subprocess.run([tool("stid"), "batch", str(day1), "--vehicle", VEHICLE, "-o", str(bad)],
+                           capture_output=True, text=True, timeout=60)
+        assert w.returncode == 2 and words in w.stderr and "runs fitted" not in w.stderr, w.stderr
