@@ -44,6 +44,11 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None, ov
     if holds_a_log(out):
         raise InputError(f"--csv {out} is a recorded run (an MCAP file): export never replaces one; give the CSV "
                          "another name")
+    if out.exists() and Path(run_path).exists() and out.resolve() == Path(run_path).resolve():
+        # (--overwrite turned a trial user's 1.1 MB logged CSV into its first 2.6 s: the input is a
+        # recorded run, whatever its format)
+        raise InputError(f"--csv {out} is the run being exported: export never writes over its input, even with "
+                         "--overwrite; give the CSV another name")
     refuse_existing([out], "stid export", overwrite)  # before the loading: known at once
     vehicle = load_vehicle(vehicle_path) if vehicle_path else None
     runs = load_file(run_path, vehicle)
@@ -51,6 +56,9 @@ def export_csv(run_path: str, csv_path: str, vehicle_path: str | None = None, ov
         raise InputError(f"{run_path} holds no usable samples")
     # a log cut into pieces writes OUT.2.csv, OUT.3.csv, ... beside OUT.csv
     paths = [out if k == 0 else out.with_name(f"{out.stem}.{k + 1}{out.suffix}") for k in range(len(runs))]
+    if any(p.exists() and p.resolve() == Path(run_path).resolve() for p in paths):
+        raise InputError(f"--csv {out}: a piece's name ({', '.join(map(str, paths[1:]))}) is the run being "
+                         "exported: give the CSV another name")
     refuse_existing(paths[1:], "stid export", overwrite)
     written = []
     for run, p in zip(runs, paths):

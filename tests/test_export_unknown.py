@@ -147,3 +147,17 @@ def test_export_to_stdout_and_into_a_pipe(clean_run, tmp_path):
         assert r.returncode == 0 and r.stdout == whole.read_text(), (target, r.stderr)
         assert "Traceback" not in r.stderr
     assert not (tmp_path / "-").exists()
+
+
+def test_export_never_writes_over_its_own_input(clean_run, tmp_path):
+    """`stid export victim.csv --csv victim.csv --overwrite` turned a trial user's 1.1 MB logged CSV
+    into its first 2.6 s (a CSV is a recorded run too); now refused, the file untouched."""
+    stid = tool("stid")
+    victim = tmp_path / "victim.csv"
+    assert subprocess.run([stid, "export", str(clean_run), "--csv", str(victim)], capture_output=True,
+                          timeout=120).returncode == 0
+    before = victim.read_bytes()
+    r = subprocess.run([stid, "export", str(victim), "--csv", str(victim), "--overwrite"], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2 and "never writes over its input" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert victim.read_bytes() == before
