@@ -150,13 +150,8 @@ def at_bound(result, names, model) -> list:
 
 
 def _where_it_vanishes(model, name: str, value: float) -> bool:
-    """Whether ``value`` sits at the end of ``name``'s range beyond which its effect vanishes (the
-    parameter's ``zero`` at or past that bound: a relaxation length's lower end)."""
-    zero = model.param(name).zero
-    if zero is None:
-        return False
-    lo, hi = model.bounds(name)
-    return (zero <= lo and abs(value - lo) <= abs(value - hi)) or (zero >= hi and abs(value - hi) < abs(value - lo))
+    """Whether ``value`` sits at the end of ``name``'s range beyond which its effect vanishes."""
+    return model.at_vanishing_end(name, value)
 
 
 def disagreements(parts: dict, names, material: float = MATERIAL) -> list:

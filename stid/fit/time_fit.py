@@ -282,6 +282,12 @@ def fit_time(model, stretches: list[Stretch], fixed: dict | None = None, init: d
     for note in getattr(stretches, "notes", []):
         result.note(note)
     for n in space.at_bound(res.x):
+        if model.at_vanishing_end(n, p_hat[n]):
+            # (a servo lag of 1e-06 s on a car without one is the truth, not a push beyond the range: a trial
+            # user was told the model lacks an effect)
+            result.note(f"{n} sits at the end of its range where its effect vanishes ({p_hat[n]:.4g} "
+                        f"{model.param(n).unit}): the data show none of it")
+            continue
         result.warn(f"{n} stopped at its bound ({p_hat[n]:.4g} {model.param(n).unit}): the data push it "
                     "outside the plausible range, or the model lacks an effect")
     checks.add_identifiability_warnings(result, model, stretches)

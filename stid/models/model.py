@@ -194,6 +194,15 @@ class Model:
             lo, hi, value = np.log(lo), np.log(hi), np.log(max(value, 1e-300))
         return value - lo < tol * (hi - lo) or hi - value < tol * (hi - lo)
 
+    def at_vanishing_end(self, name: str, value: float) -> bool:
+        """Whether ``value`` sits at the end of ``name``'s range beyond which its effect vanishes
+        (the parameter's ``zero`` at or past that bound: a lag's or a relaxation length's lower end)."""
+        zero = self.param(name).zero
+        if zero is None:
+            return False
+        lo, hi = self.bounds(name)
+        return (zero <= lo and abs(value - lo) <= abs(value - hi)) or (zero >= hi and abs(value - hi) < abs(value - lo))
+
     def owner(self, name: str) -> str:
         for e in self.effects:
             if any(p.name == name for p in e.params):
