@@ -168,10 +168,33 @@ def predict(model: Model, params: dict, manoeuvres: list[Manoeuvre], noise: dict
     ix = np.ix_(seen, seen)
     cov[ix] = sandwich(A[ix], B[ix]) if estimator == "output-error" else np.linalg.pinv(info[ix])
     sd = np.sqrt(np.maximum(np.diag(cov), 0))
+    # A combination of parameters the steer's response does not move (a steering compliance against
+    # a softer front axle; a stiffness growing with vx^2 at one speed) has no sd: the pseudo-inverse
+    # gives the parameters in it a finite, tiny one (a trial user was promised c_steer to 0.6%, and Cf
+    # to 1e-10 N/rad). Each parameter with a part in such a combination is said to have none.
+    tied = _undetermined(info[ix])
+    for i, j in enumerate(np.flatnonzero(seen)):
+        if tied[i]:
+            sd[j] = np.nan
+            cov[j, :] = cov[:, j] = np.nan
+    seen = seen & np.isfinite(sd)
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
     return {"names": names, "sd": dict(zip(names, sd)), "cov": cov, "corr": np.nan_to_num(corr),
             "info": info, "estimator": estimator}
+
+
+NULL_SHARE = 1e-6  # an eigenvalue of the information's correlation form this far below the largest: none
+
+
+def _undetermined(info: np.ndarray) -> np.ndarray:
+    """Which parameters have a part in a combination the information holds none of (bool per row)."""
+    if not len(info):
+        return np.zeros(0, bool)
+    scale = np.sqrt(np.diag(info))
+    w, V = np.linalg.eigh(info / np.outer(scale, scale))
+    null = w < NULL_SHARE * max(float(w.max()), 1e-300)
+    return np.any(np.abs(V[:, null]) > 1e-3, axis=1) if null.any() else np.zeros(len(info), bool)
 
 
 def noise_from_fit(result) -> dict:
@@ -335,13 +358,16 @@ def plan_report(model, params, manoeuvres, noise, targets, noise_source: str,
             unseen.append(n)
             lines.append(f"  {n:<14}{v:>12.5g}{'-':>15} {'':>11}  {model.param(n).unit}")
             continue
-        rel = f"({100 * sd / abs(v):.1f}%)" if v else ""
+        pct = 100 * sd / abs(v) if v else 0.0
+        rel = (f"({pct:.1f}%)" if pct >= 0.1 else f"({pct:.2g}%)") if v else ""  # (a bare 0.0% read as exact)
         lines.append(f"  {n:<14}{v:>12.5g}{sd:>15.4g} {rel:>11}  {model.param(n).unit}")
         if model.at_bound(n, v):
             stuck.append(f"{n} = {v:.4g}")
     if unseen:
         lines.append(f"  note: {', '.join(unseen)}: no sd predicted. The plan works from the steer's response, "
-                     "which carries nothing about a constant (it acts at 0 Hz); a fit finds it from the runs' means")
+                     "which carries nothing about a constant (it acts at 0 Hz; a fit finds it from the runs' means), "
+                     "nor about a combination of parameters that moves it alike (then the drive cannot tell them "
+                     "apart: another speed or manoeuvre may)")
     if stuck:
         lines.append(f"  note: {', '.join(stuck)} at the edge of the plausible range: the values assumed hold no "
                      "such effect (a run fitted for them showed none), so the sd predicted for it means little; "

@@ -251,3 +251,35 @@ def test_on_a_right_model_with_white_noise_nothing_is_said_to_follow_the_steer()
     lagged = synthetic_run(0, m, truth_model="bicycle+actuator_lag", truth=dict(TRUE, tau_steer=0.04))
     _, source, _, _ = noise_from_runs([lagged], VEHICLE, "bicycle", "run")
     assert min(int(x) for x in re.search(r"follows the steer: ay (\d+)%, r (\d+)%", source).groups()) >= 50, source
+
+
+def test_parameters_the_drive_cannot_tell_apart_have_no_predicted_sd():
+    """A trial user's steering compliance (the road-wheel angle less c times the front force) is, in
+    the linear model, a softer front axle: the plan's pseudo-inverse promised c_steer to 0.6% and Cf
+    to 1e-10 N/rad, where `stid fit` gives Cf no interval. Both are now without a predicted sd; the
+    others keep theirs."""
+    from stid.models.effect import BodyLoad, Effect, register_effect, unregister_effect
+    from stid.models.params import Param
+
+    class Compliance(Effect):  # (the trial user's, as they wrote it)
+        name = "plan_test_compliance"
+        stage = "body"
+        physics = "the linkage twists under the front lateral force: delta_rw = delta - c Fyf"
+        signature = "the front axle looks softer"
+        params = (Param("c_steer", "rad/N", "angle lost per newton", 2e-4, 0.0, 0.01, log=False, zero=0.0),)
+
+        def body_loads(self, p, ctx):
+            cf = p["Cf"]
+            k = -cf * (p["c_steer"] * cf / (1 + p["c_steer"] * cf))
+            return BodyLoad(Fy={"vy": -k / ctx.vx, "r": -k * ctx.a / ctx.vx, "delta": k},
+                            Mz={"vy": -ctx.a * k / ctx.vx, "r": -ctx.a * ctx.a * k / ctx.vx, "delta": ctx.a * k})
+
+    register_effect(Compliance)
+    try:
+        m = Manoeuvre(4.0, math.radians(2.0), 4.0, 60.0)
+        got = predict(Model("bicycle+plan_test_compliance", VEHICLE), dict(TRUE, c_steer=2e-4), [m],
+                      datasheet_noise(vehicle=VEHICLE))
+    finally:
+        unregister_effect("plan_test_compliance")
+    assert np.isnan(got["sd"]["Cf"]) and np.isnan(got["sd"]["c_steer"]), got["sd"]
+    assert np.isfinite(got["sd"]["Cr"]) and np.isfinite(got["sd"]["Iz"]), got["sd"]
