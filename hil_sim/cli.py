@@ -182,6 +182,14 @@ def _check_outputs(args) -> None:
             raise ValueError(f"{flag} {path}: the directory {where} cannot be written; give another path")
 
 
+def _quiet_overflow():
+    """numpy's overflow warnings off: a car whose motion runs away (an effect file's load of the wrong
+    sign) printed a screen of them before the one line that names the file (vehicle._check_bounded)."""
+    import numpy as np
+
+    return np.errstate(over="ignore", invalid="ignore")
+
+
 def main(argv=None) -> int:
     try:  # (Ctrl-C while the simulator loads ends it as Ctrl-C while it runs does, without a traceback)
         ap = build_parser()
@@ -199,7 +207,8 @@ def main(argv=None) -> int:
 
             faults = LinkFaults(ber=args.ber, drop_rate=args.drop_rate, insert_rate=args.insert_rate,
                                 seed=args.seed)
-            stats = record(cfg, args.output, csv_path=args.csv, truth_path=args.truth, faults=faults)
+            with _quiet_overflow():
+                stats = record(cfg, args.output, csv_path=args.csv, truth_path=args.truth, faults=faults)
             lossy = args.ber or args.drop_rate or args.insert_rate
             print(f"wrote {args.output}: {stats['samples']} samples"
                   + (f" ({stats['lost_frames']} frames lost, {sum(stats['errors'].values())} rejected, "
@@ -213,7 +222,8 @@ def main(argv=None) -> int:
                             link=args.link, fault_log=args.fault_log, truth=args.truth,
                             faults=LinkFaults(ber=args.ber, drop_rate=args.drop_rate,
                                               insert_rate=args.insert_rate, seed=args.seed))
-        return serve(cfg, opts)
+        with _quiet_overflow():
+            return serve(cfg, opts)
     except ValueError as e:
         print(f"stid-sim: error: {e}", file=sys.stderr)
         return 2

@@ -85,10 +85,20 @@ def _reported(fn, hook, path):
         except Exception as e:
             raise ValueError(f"--effect-file {path}: {hook} raised {type(e).__name__}: {e}") from None
         try:
-            return check(out, given)
+            got = check(out, given)
         except (TypeError, ValueError):
             got = "nothing (a missing return?)" if out is None else f"{type(out).__name__} {_short(out)}"
             raise ValueError(f"--effect-file {path}: {hook} must return {RETURNS[hook]}; it returned {got}") from None
+        values = got.values() if isinstance(got, dict) else np.atleast_1d(got)
+        if not all(np.all(np.isfinite(np.asarray(v, float))) for v in values):
+            # (the run was written with them: an accelerometer at its ADC limit for 7489 samples, no word)
+            at = f" at vx = {args[0]['vx']:.3g} m/s" if hook == "body_loads" and isinstance(args[0], dict) else ""
+            if at and not abs(args[0]["vx"]) < 1e3:
+                at += (" (the car's motion had run away by then: a load that grows with the motion it causes "
+                       "diverges; check its signs, ISO 8855)")
+            raise ValueError(f"--effect-file {path}: {hook} returned nan or inf{at}: it must give finite values "
+                             "everywhere the car drives")
+        return got
 
     return call
 

@@ -510,8 +510,28 @@ def simulate_chunks(car: CarParams, effects: Effects, t: np.ndarray, steer_plan:
         switches = {"step": np.asarray(sw_step, dtype=int), "t": np.asarray(sw_t, dtype=float),
                     "state": np.asarray(sw_state, dtype=float).reshape(-1, 13),
                     "old": np.asarray(sw_old, dtype=float), "new": np.asarray(sw_new, dtype=float)}
+        _check_bounded(out, t[i0:i0 + len(out)], effects)
         yield Chunk(i0=i0, out=out, aux=aux, delta_cmd=delta_cmd, switches=switches, pulses=pulses, rise=rise,
                     rhs=rhs, spool=spool_on, dt=dt)
+
+
+R_DIVERGED = 50.0  # rad/s: a car yawing faster than 8 turns a second is no car; its motion diverged
+
+
+def _check_bounded(out: np.ndarray, t: np.ndarray, effects: Effects) -> None:
+    """A ValueError, naming the effect files, where the integrated motion went non-finite or diverged
+    (a trial user's unstable effect and its nan ended as 'cannot convert float NaN to integer' from
+    the ADC, naming nothing)."""
+    bad = ~np.all(np.isfinite(out), axis=1) | (np.abs(np.nan_to_num(out[:, 5], nan=np.inf)) > R_DIVERGED)
+    if not bad.any():
+        return
+    k = int(np.flatnonzero(bad)[0])
+    files = ", ".join(e.path for e in effects.custom)
+    raise ValueError(f"the simulated car's motion diverged at t = {t[k]:.3f} s (its state "
+                     f"{'went nan or inf' if not np.all(np.isfinite(out[k])) else f'yawed at {out[k, 5]:.3g} rad/s'})"
+                     + (f": the effect file {files} makes it unstable or returns nan there; check its signs "
+                        "(ISO 8855: a load that grows with the motion it causes runs away) and units" if files else
+                        ": check the car's parameters (--car) and the effects hidden"))
 
 
 class TrajectoryWindow:

@@ -186,6 +186,14 @@ def test_an_effect_file_adds_its_loads_and_signals(tmp_path):
     # an array of another length, written into the dict it was given and returned
     ("def sensor_signals(t, s, car):\n    s['r'] = s['r'][::2]\n    return s\n",
      "sensor_signals must return the dict of signals it was given"),
+    # a nan, or a load that runs away (a trial user's: 'cannot convert float NaN to integer', or a run
+    # written with its accelerometer at the ADC limit, naming nothing)
+    ("def body_loads(state, car):\n    return float('nan') if state['vx'] > 0.5 else 0.0, 0.0\n",
+     "body_loads returned nan or inf at vx = "),
+    ("def sensor_signals(t, s, car):\n    s['ay'] = s['ay'] + float('inf')\n    return s\n",
+     "sensor_signals returned nan or inf"),
+    ("def body_loads(state, car):\n    return 1e4 * state['vy'], 1e4 * state['r']\n",
+     "motion"),
 ])
 def test_a_bad_effect_file_is_one_line_and_exit_2(tmp_path, text, says):
     import subprocess
