@@ -384,6 +384,12 @@ def diagnose(runs, vehicle, model_name: str = "bicycle", peel: bool = False, max
         final_name, final = last.named_model, last.named_result
         reasons = [f"{c.effect} is {c.why_not}" for c in last.candidates
                    if c.evidence is not None and not c.evidence.holds]
+        own = max((c.screen.get("own_gain", 0.0) for c in last.candidates if c.screen), default=0.0)
+        if own >= MIN_GAIN and "+" in last.model:
+            # (a trial user's bicycle+tyre_relaxation on a car with a servo lag: a locked_diff was named)
+            reasons.append(f"{last.model} is not where its own linearised step sees its optimum (that step gains "
+                           f"{own:.1f} fit points): far from linear there, its effects may stand in for another, "
+                           f"and candidates are judged poorly from it; diagnose from {parse_model_name(last.model)[0]}")
         reasons += [f"pairs tried with {c.effect}: {c.pairs.words()}" for c in last.candidates
                     if c.pairs is not None and not c.significant]
         # the final model's per-speed fits were made when its last effect's evidence was checked

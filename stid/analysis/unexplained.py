@@ -73,6 +73,7 @@ def _regressors(stretches, preds):
 
 
 EARLY_Z = 3.0  # standard errors: outputs this far ahead of the steer are said
+LAGGING = ("actuator_lag", "sensor_delay", "tyre_relaxation")  # effects that delay the outputs after the steer
 
 
 def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se, reasons=(),
@@ -114,10 +115,15 @@ def describe_unexplained(model_name, result, vehicle, stretches, floor, floor_se
     # catalogue effect moves the steer later), and the gap then sent a trial user to write one
     seen = result.extra.get("delay_seen_ms")
     if seen is not None and seen[0] < 0 and abs(seen[0]) >= EARLY_Z * seen[1]:
-        u.where.append(f"the outputs answer the steer {abs(seen[0]):.2f} ms (std. error {seen[1]:.2f}) earlier than "
-                       f"{model_name} has them: the steer is timed late (a command timed by its receive time, as a "
-                       "ROS Float64 command without a header is: docs/ros.md; or a steer channel logged after "
-                       "the sensors), or a sensor filter is declared slower than it is ([sensors])")
+        lags = [e for e in model_name.split("+")[1:] if e in LAGGING]
+        said = f"the outputs answer the steer {abs(seen[0]):.2f} ms (std. error {seen[1]:.2f}) earlier than {model_name} has them"
+        if lags:  # (its own lag is too much: a relaxation standing in for a servo lag left the outputs 'early')
+            u.where.append(f"{said}: its {', '.join(lags)} delays them more than the data do (standing in for "
+                           "another effect?)")
+        else:
+            u.where.append(f"{said}: the steer is timed late (a command timed by its receive time, as a ROS Float64 "
+                           "command without a header is: docs/ros.md; or a steer channel logged after the sensors), "
+                           "or a sensor filter is declared slower than it is ([sensors])")
     # -- which band: the model's residual against the floor's, band by band
     for i, o in enumerate(OUTS):
         rows = []
