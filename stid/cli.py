@@ -555,12 +555,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--check", action="store_true", help=argparse.SUPPRESS)  # only check the arguments
     p.set_defaults(func=_cmd_live)
 
-    p = sub.add_parser("batch", help="fit (and diagnose) many runs in parallel; one table and drift plots")
+    p = sub.add_parser("batch", help="fit (and diagnose) many runs in parallel; one table and drift plots",
+                       epilog="The table's columns, one row per run: each parameter's value with _se, _lo and _hi "
+                              "(its standard error and 95% interval; empty where the data do not determine it) in "
+                              "SI units (Cf, Cr: N/rad per axle; Iz: kg m^2; a lag: s; x_acc: m), fit_ay and fit_r "
+                              "[%], speed [m/s], below_floor (fit points short of the run's noise floor, where the "
+                              "model misses an effect), warnings and warning_text, missing_effect (--diagnose), "
+                              "error, skipped (a run that stands still throughout), seconds (its time to fit).")
     p.add_argument("runs", metavar="DIR_OR_GLOB", nargs="+",
-                   help="a directory of runs, a glob like 'logs/*.mcap', or the run files (as a shell expands one)")
-    p.add_argument("--vehicle", required=True)
-    p.add_argument("--model", default="bicycle")
-    p.add_argument("--method", default="time", choices=["time", "freq", "auto"])
+                   help="directories of runs, globs like 'logs/*.mcap', or run files (as a shell expands a glob)")
+    p.add_argument("--vehicle", required=True, help="the car's vehicle file (mass, a, b; docs/examples/rc8.toml)")
+    p.add_argument("--model", default="bicycle", help="the model each run is fitted with (default bicycle)")
+    p.add_argument("--method", default="time", choices=["time", "freq", "auto"],
+                   help="the fit's method (default time: every run by the same one, so the rows compare; stid "
+                        "fit's default is auto, which picks by what a run holds)")
     p.add_argument("--diagnose", action="store_true", help="also name the missing effect of each run")
     p.add_argument("--workers", type=int, help="local processes (default: one per core)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786")
