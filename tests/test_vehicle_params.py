@@ -94,3 +94,17 @@ def test_the_command_says_it_in_one_line(tmp_path, runs):
                        text=True, timeout=120)
     assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "[params] Iz" in r.stderr, r.stderr
+
+
+def test_fits_worse_says_by_how_much_in_the_likelihood_that_decides():
+    """'fits worse than bicycle (ay 99.6% vs 99.6%   r 99.0% vs 99.0%)' read as a contradiction: the
+    likelihood decides, and the fit percents round alike. The words give the likelihood's gap."""
+    from types import SimpleNamespace
+
+    from stid.fit.nested import say_worse
+
+    inner = SimpleNamespace(model="bicycle", loglik=1000.0, fit={"ay": 99.61, "r": 99.02})
+    result = SimpleNamespace(model="bicycle+tyre_saturation", loglik=992.8, fit={"ay": 99.58, "r": 99.01},
+                             status="", converged=True, names=["Cf"], undetermined={})
+    say_worse(result, inner)
+    assert "log-likelihood 7.2 lower" in result.status and not result.converged, result.status
