@@ -157,6 +157,11 @@ def calibrate_cli(standstill_path: str, vehicle_path: str, circles=(), output: s
     if output is not None and Path(output).resolve() != Path(vehicle_path).resolve():
         refuse_existing([out], "stid calibrate -o", overwrite)
     vehicle = load_vehicle(vehicle_path)
+    if Path(standstill_path).suffix.lower() == ".csv" and not is_ros(standstill_path, vehicle):
+        # (a trial user's valid CSV was called "not an MCAP file ... corrupted")
+        raise InputError(f"{standstill_path}: stid calibrate takes a stand-still logged by stid-log (MCAP: the raw "
+                         "sensor voltages and the board's HELLO) or a ROS bag; a CSV in SI units carries neither. A "
+                         "CSV run's gyro zero is taken from its own stand-still when it is fitted")
     st = standstill_ros(standstill_path, vehicle) if is_ros(standstill_path, vehicle) else \
         standstill(standstill_path, vehicle)
     sensors = dict(vehicle.sensors)

@@ -82,3 +82,13 @@ def test_calibrate_names_an_unwritable_output_before_its_results(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 2 and "the directory" in r.stderr and "does not exist" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_csv_is_told_what_calibrate_takes_not_called_a_corrupted_mcap(tmp_path):
+    csv = tmp_path / "still.csv"
+    t = np.arange(1000) / 200.0
+    csv.write_text("t,steer,ay,r,vx\n" + "\n".join(f"{x:.3f},0,0.01,0.002,0" for x in t) + "\n")
+    r = subprocess.run([tool("stid"), "calibrate", str(csv), "--vehicle", str(REPO / "docs" / "examples" / "rc8.toml"),
+                        "-o", str(tmp_path / "o.toml")], capture_output=True, text=True)
+    assert r.returncode == 2 and "takes a stand-still logged by stid-log" in r.stderr, r.stderr
+    assert "corrupted" not in r.stderr and not (tmp_path / "o.toml").exists()
