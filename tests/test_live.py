@@ -911,3 +911,20 @@ def test_a_delay_far_beyond_chance_is_said_so_without_an_infinite_count():
     words, chance = _delay_seen(SimpleNamespace(extra={"delay_seen_ms": (-0.069, 0.0268)}))
     assert "early at 2.6 standard errors, which chance gives in about 1 fit of" in words and chance
     assert _delay_seen(SimpleNamespace(extra={})) == ("", True)
+
+
+def test_a_live_logger_that_gets_no_data_ends_at_its_idle_timeout(tmp_path):
+    """A port that sends nothing: the logger gave up at its idle timeout and left no file, while its
+    live view redrew 'waiting for ... to appear' for 20 s more, and only then came the logger's error."""
+    master, slave = os.openpty()
+    try:
+        t0 = time.monotonic()
+        r = subprocess.run([tool("stid-log"), os.ttyname(slave), "-o", str(tmp_path / "x.mcap"), "--idle-timeout", "2",
+                            "--live", "--vehicle", str(car_file(tmp_path))], capture_output=True, text=True, timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert r.returncode == 3 and "no data from" in r.stderr, r.stderr
+    assert took < 12, took  # (the idle timeout, the view's start and one poll; it was 20 s more)
+    assert not (tmp_path / "x.mcap").exists()

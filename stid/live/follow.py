@@ -86,6 +86,10 @@ def live(path, vehicle, model: str, targets: dict, targets_from: str, follow: bo
             if snap.finished and (not from_logger or logger_done.is_set()):
                 break
             pace = every
+            if logger_done.is_set() and not Path(path).exists():
+                # (a logger that got no data leaves no file: its own error says why, at once; the view had
+                # redrawn 'waiting for it to appear' for 20 s before it, ~100 times)
+                break
             if logger_done.is_set():  # the logger has ended: its file is finished any moment now
                 logger_ended_at = logger_ended_at or time.monotonic()
                 if time.monotonic() - logger_ended_at > LAST_WAIT_S:
