@@ -351,3 +351,30 @@ def test_a_users_effect_that_breaks_the_contract_is_named_in_one_line(tmp_path, 
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-2000:]
     said = [line for line in r.stderr.splitlines() if line.startswith("stid fit: error:")]
     assert len(said) == 1 and re.search(words, said[0]) and str(path) in said[0], r.stderr[-2000:]
+
+
+def test_a_users_offset_effect_is_taken_though_no_frequency_response_shows_it(tmp_path, monkeypatch):
+    """The check that a user's parameters move the model compared frequency responses only, and took
+    an offset (a constant on an output, which no frequency response holds) for an effect that does
+    nothing."""
+    path = _user_effect(tmp_path, """@register_effect
+class Offset(Effect):
+    name = "users_offset"
+    stage = "output"
+    physics = "a constant on ay"
+    signature = "a mean residual"
+    params = (Param("users_off", "m/s^2", "ay offset", 0.1, -2.0, 2.0, log=False, zero=0.0),)
+
+    def apply(self, sys, p, ctx):
+        sys = sys.copy()
+        sys.offsets["ay"] = sys.offsets.get("ay", 0.0) + p["users_off"]
+        return sys
+""", name="users_offset")
+    import stid.models.effect as eff
+
+    monkeypatch.setattr(eff, "_ENTRY_POINTS_LOADED", False)
+    monkeypatch.setenv("STID_EFFECTS", str(path))
+    try:
+        assert Model("bicycle+users_offset", VEHICLE).param("users_off").unit == "m/s^2"
+    finally:
+        unregister_effect("users_offset")

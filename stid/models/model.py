@@ -148,7 +148,7 @@ class Model:
                 if not (np.isfinite(lo) and np.isfinite(hi) and lo <= p[q.name] <= hi):
                     raise InputError(f"your effect {where(e)}: parameter {q.name} starts at {p[q.name]!r}, outside "
                                      f"its bounds [{lo!r}, {hi!r}]: give finite bounds that hold the start")
-            if not e.maps_steer and not e.nonlinear and not self._moves(e, p, ctx.vx):
+            if not e.maps_steer and not e.nonlinear and not any(self._moves(e, p, v) for v in (2.0, 5.0, 8.0)):
                 raise InputError(f"your effect {where(e)}: changing its parameters ({', '.join(q.name for q in e.params)}) "
                                  f"changes nothing in the model: is its stage ({e.stage!r}) the one whose method it "
                                  "defines ('body' for body_loads, 'tyre' for tyre_options, 'input' or 'output' for "
@@ -158,13 +158,19 @@ class Model:
         """Whether the linear model's responses change with any of effect ``e``'s parameters (at
         ``vx``, from the values ``p``, each moved a tenth of the way to a bound)."""
         f = np.array([0.2, 1.0, 4.0])
-        base = self.freqresp(p, f, vx)
+
+        def response(q):  # (the offsets too: a sensor offset is a constant the frequency response leaves out)
+            return self.freqresp(q, f, vx), dict(self.build(q, vx).offsets)
+
+        base, base_off = response(p)
         for q in e.params:
             lo, hi = self.bounds(q.name)
             for to in (hi, lo):
                 moved = dict(p, **{q.name: p[q.name] + 0.1 * (to - p[q.name])})
-                if moved[q.name] != p[q.name] and not np.allclose(self.freqresp(moved, f, vx), base,
-                                                                   rtol=1e-9, atol=1e-12):
+                if moved[q.name] == p[q.name]:
+                    continue
+                resp, off = response(moved)
+                if not np.allclose(resp, base, rtol=1e-9, atol=1e-12) or off != base_off:
                     return True
         return not e.params
 
