@@ -316,7 +316,7 @@ def test_a_command_on_a_clock_of_its_own_stays_on_the_imus_grid():
     IMU's grid average out, as a trial user's bags on drifting clocks showed) are not driven finely;
     steps at one phase, or at a few, are."""
     from stid.ros.message_types import ACKERMANN
-    from stid.ros.to_run import _steps_in_phase
+    from stid.ros.to_run import _in_phase, _step_phases
 
     choice = type("Choice", (), {"steering_type": ACKERMANN})()
     rng = np.random.default_rng(0)
@@ -324,10 +324,10 @@ def test_a_command_on_a_clock_of_its_own_stays_on_the_imus_grid():
     command = {"drive.steering_angle": rng.standard_normal(n)}
     imu_line = (0.0, 0.005, 0)
     own_clock = np.arange(n) * 0.02 * (1 + 37e-6) + 0.0013  # a 50 Hz clock 37 ppm off the IMU's
-    assert _steps_in_phase(own_clock, command, choice, imu_line, 200.0) is None
-    assert _steps_in_phase(np.sort(rng.uniform(0, 40, n)), command, choice, imu_line, 200.0) is None
-    assert _steps_in_phase(np.arange(n) * 0.02 + 0.0017, command, choice, imu_line, 200.0) == 1.0
-    assert _steps_in_phase(np.arange(n) * 0.021 + 0.002, command, choice, imu_line, 200.0) >= 0.5
+    assert _in_phase(_step_phases(own_clock, command, choice, imu_line, 200.0)) is None
+    assert _in_phase(_step_phases(np.sort(rng.uniform(0, 40, n)), command, choice, imu_line, 200.0)) is None
+    assert _in_phase(_step_phases(np.arange(n) * 0.02 + 0.0017, command, choice, imu_line, 200.0)) == 1.0
+    assert _in_phase(_step_phases(np.arange(n) * 0.021 + 0.002, command, choice, imu_line, 200.0)) >= 0.5
 
 
 def test_an_imu_whose_stamps_jitter_keeps_its_own_instants(tmp_path):

@@ -46,9 +46,10 @@ FINE_FS = 200.0  # the time-domain fit's own rate (stid.fit.dataset.FIT_FS)
 # answers the steer at once (ay through the front tyre) and is sampled at an instant reads the step
 # early or late by a fixed part of a period. On a trial user's exact bags (200 Hz IMU sampled at an
 # instant, 50 Hz command 1.7 ms after it) Cf -1.0%, Cr -1.5%, Iz -1.1%, intervals missing Cr and
-# Iz; driven at 1 kHz: +0.02%, -0.16%, +0.01%. Steps this concentrated in phase (the mean resultant
-# length of their phases in the IMU period; spread phases give ~1/sqrt(steps)) drive the models on
-# a grid near LOCKED_FS. (An IMU that averages over its period reads -1% so, within its intervals.)
+# Iz; driven at 1 kHz: +0.02%, -0.16%, +0.01%. Steps this concentrated in phase (LOCKED_SHARE of
+# them in the FEW_PHASES fullest of PHASE_BINS parts of the IMU period; one clock at a few points of
+# it, as a 21 ms command on a 5 ms IMU, counts too) drive the models on a grid near LOCKED_FS. (An
+# IMU that averages over its period reads -1% so, within its intervals.)
 LOCKED_SHARE = 0.5
 LOCKED_FS = 1000.0
 PHASE_BINS, FEW_PHASES = 50, 5  # the steps in the 5 fullest of 50 bins of phase: 10% if spread evenly
@@ -86,14 +87,15 @@ def load_bag(path, vehicle) -> list[Run]:
                         "(noise, the motor's vibration) folds into the run; leave rate_hz out to use the IMU's own "
                         "rate")
     fine = int(round(FINE_FS / rate)) if rate < FINE_BELOW_HZ else 1
-    locked = _steps_in_phase(times[choice.steering], cols[choice.steering], choice, imu_line, rate)
+    phases = _step_phases(times[choice.steering], cols[choice.steering], choice, imu_line, rate)
+    locked = _in_phase(phases)
     if locked is not None and fine * rate < 0.9 * LOCKED_FS:
         fine = int(round(LOCKED_FS / rate))
         notes.append(f"the steering command's steps fall at one point of the IMU's {rate:.0f} Hz period, or at a few "
                      f"({100 * locked:.0f}% of them in {FEW_PHASES} of {PHASE_BINS} parts of it: one clock for both, as "
                      "in a simulator), so on the IMU's grid each would be read early or late by its point's part of a "
                      "period")
-    on_samples = _steps_on_samples(times[choice.steering], cols[choice.steering], choice, imu_line, rate)
+    on_samples = float(np.mean(np.minimum(phases, 1.0 - phases) < ON_SAMPLE_S * rate)) if phases is not None else 0.0
     if on_samples >= ON_SAMPLES_SAID:
         warnings.append(f"{100 * on_samples:.0f}% of the steering command's steps are stamped at an IMU sample's "
                         "instant (one clock for both, as in a simulator): whether that sample saw the step the stamps "
@@ -294,32 +296,28 @@ def _signals(grid, times, cols, choice, rate, table, vehicle, where, notes, warn
     return sig, tilt
 
 
-def _steps_in_phase(st_t, command_cols, choice, imu_line, rate) -> float | None:
-    """How concentrated in phase within the grid's period the command's steps are (the mean
-    resultant length of their phases, 0-1), when it is LOCKED_SHARE or more and the steps are
-    enough to tell (else None). The grid is the IMU's instants (imu_line: its start and period)."""
+def _step_phases(st_t, command_cols, choice, imu_line, rate) -> np.ndarray | None:
+    """Where in the grid's period (0-1) each of the command's steps falls (the grid: the IMU's
+    instants, imu_line's start and period), or None with too few steps to tell."""
     command = command_cols["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
     steps = np.flatnonzero(np.diff(command) != 0) + 1
     if len(steps) < 20:
         return None
-    phase = (st_t[steps] - imu_line[0]) * rate % 1.0
-    counts = np.sort(np.histogram(phase, bins=PHASE_BINS, range=(0.0, 1.0))[0])[::-1]
-    share = float(counts[:FEW_PHASES].sum() / len(phase))
+    return (st_t[steps] - imu_line[0]) * rate % 1.0
+
+
+def _in_phase(phases) -> float | None:
+    """The share of the steps in the FEW_PHASES fullest of PHASE_BINS parts of the period, when it is
+    LOCKED_SHARE or more (else None)."""
+    if phases is None:
+        return None
+    counts = np.sort(np.histogram(phases, bins=PHASE_BINS, range=(0.0, 1.0))[0])[::-1]
+    share = float(counts[:FEW_PHASES].sum() / len(phases))
     return share if share >= LOCKED_SHARE else None
 
 
 ON_SAMPLES_SAID = 0.05  # of the steps stamped at a sample's instant: said (a clock of its own puts ~0% there)
 ON_SAMPLE_S = 1e-6
-
-
-def _steps_on_samples(st_t, command_cols, choice, imu_line, rate) -> float:
-    """The share of the command's steps stamped within ON_SAMPLE_S of an IMU sample's instant."""
-    command = command_cols["drive.steering_angle" if choice.steering_type == ACKERMANN else "data"]
-    steps = np.flatnonzero(np.diff(command) != 0) + 1
-    if len(steps) < 20:
-        return 0.0
-    off = (st_t[steps] - imu_line[0]) * rate % 1.0
-    return float(np.mean(np.minimum(off, 1.0 - off) < ON_SAMPLE_S * rate))
 
 
 def _same_map(raw: np.ndarray, mapped: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -363,7 +361,7 @@ def _open(path, table, where, said):
     if bare and len(inside) > 1:
         # a split bag whose recorder was killed: its pieces in order, the last perhaps not closed
         with tempfile.TemporaryDirectory(prefix="stid-unclosed-") as scratch:
-            pieces, cut = _closed_pieces(inside, Path(scratch), said)
+            pieces = _closed_pieces(inside, Path(scratch), said)
             with Bag(path, pieces=pieces) as bag:
                 yield bag
         return
@@ -389,7 +387,7 @@ def _open(path, table, where, said):
 def _closed_pieces(inside: list, scratch: Path, said: list) -> tuple:
     """The pieces of a split bag read without its metadata.yaml, each not closed (its recorder
     killed while writing it: the last, as a rule) replaced by a copy up to its last complete
-    chunk in ``scratch``; what was done is said in ``said``. Returns (pieces, pieces copied)."""
+    chunk in ``scratch``; what was done is said in ``said``. Returns the pieces to read."""
     from stid.ros.unclosed import being_recorded, readable_copy
 
     pieces, copied = [], []
@@ -407,7 +405,7 @@ def _closed_pieces(inside: list, scratch: Path, said: list) -> tuple:
                 + (f"; {', '.join(copied)} not closed: read up to its last complete chunk" if copied else ""))
     if not pieces:
         raise InputError(f"{inside[0].parent}: none of the bag's pieces holds a complete chunk of messages yet")
-    return pieces, copied
+    return pieces
 
 
 TRANSPORT_SAID_MS = 1.0  # receive delays this far apart between the IMU and the command are said
