@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from stid.errors import InputError, StidError
-from stid.output_paths import refuse_existing
+from stid.output_paths import refuse_existing, unwritable
 
 
 def find_runs(pattern, skipped: list | None = None) -> list[str]:
@@ -89,7 +89,7 @@ def run_job(path: str, vehicle_path: str, model: str, method: str, do_diagnose: 
         runs = load_file(path, vehicle)
         from stid.fit.dataset import V_MOVING
 
-        if all(max(abs(float(v)) for v in (r.vx.min(), r.vx.max())) < V_MOVING for r in runs):
+        if all(max(abs(r.vx.min()), abs(r.vx.max())) < V_MOVING for r in runs):
             # (a session's calibration run: every normal session directory made batch exit 3)
             row.update(error="", skipped="stands still throughout: nothing to fit (stid calibrate takes it)",
                        seconds=time.perf_counter() - t0)
@@ -183,19 +183,9 @@ def run_batch(files, vehicle_path, model="bicycle", method="time", workers=None,
 
 def _check_writable(out: Path) -> None:
     """That the table can be written where asked, and in its format (InputError if not)."""
-    import tempfile
-
-    parent = out.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent  # (the first that exists: write_table makes the rest)
-    if not parent.is_dir():
-        raise InputError(f"-o {out}: {parent} is not a directory; give an output in a directory you can write to")
-    try:  # (access() says yes to root for /proc: a file made and removed is the test)
-        with tempfile.NamedTemporaryFile(dir=parent, prefix=".stid-batch-"):
-            pass
-    except OSError as e:
-        raise InputError(f"-o {out}: cannot write in {parent} ({e.strerror or e}); give an output in a directory "
-                         "you can write to") from None
+    why = unwritable(out.parent)
+    if why:
+        raise InputError(f"-o {out}: {why}; give an output in a directory you can write to")
     if out.suffix.lower() == ".parquet":
         try:
             import pyarrow  # noqa: F401

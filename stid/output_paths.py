@@ -4,7 +4,6 @@ heavy ones)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from stid.errors import InputError
@@ -29,11 +28,26 @@ def check_report_dir(out_dir, overwrite: bool = False) -> Path:
         raise InputError(f"-o {out_dir} is a file: the report is a directory (report.html and its figures); "
                          "give a directory path")
     refuse_existing([out_dir / "report.html"], "stid report", overwrite)
-    there = out_dir.absolute()
-    while not there.exists():
-        there = there.parent
-    if not there.is_dir() or not os.access(there, os.W_OK | os.X_OK):
-        why = "not a directory" if not there.is_dir() else "not writable"
-        raise InputError(f"cannot make the report directory {out_dir} ({there} is {why}): "
-                         "give one that can be written with -o")
+    why = unwritable(out_dir)
+    if why:
+        raise InputError(f"cannot make the report directory {out_dir} ({why}): give one that can be written with -o")
     return out_dir
+
+
+def unwritable(path) -> str:
+    """Why nothing can be written at ``path`` (a directory that may not exist yet), or ''. Judged at
+    its first part that exists, by making and removing a file there: access() says yes to root for
+    /proc, where a trial user's `stid batch -o /proc/out.csv` failed after all the fitting."""
+    import tempfile
+
+    there = Path(path).absolute()
+    while not there.exists() and there != there.parent:
+        there = there.parent
+    if not there.is_dir():
+        return f"{there} is not a directory"
+    try:
+        with tempfile.NamedTemporaryFile(dir=there, prefix=".stid-"):
+            pass
+    except OSError as e:
+        return f"cannot write in {there} ({e.strerror or e})"
+    return ""
